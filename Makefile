@@ -1,0 +1,60 @@
+# turning_force: the two commands of the README.
+#   make run    set up (venv, ROS 2 wheels, our messages, our package) and run the default experiment
+#   make test   set up, lint, type-check and run the tests
+# Set-up steps leave stamps in .venv/.stamps and are skipped when done.
+
+VENV    := .venv
+PY      := $(VENV)/bin/python
+STAMPS  := $(VENV)/.stamps
+MSGS    := msgs/turning_force_msgs
+BUILD   := build/turning_force_msgs
+EXPERIMENT ?= config/experiments/park1998_fig8.yaml
+
+# Keep DDS discovery on this machine, so runs and tests do not hear other hosts.
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+
+.PHONY: setup run test lint reproduce bench clean
+
+setup: $(STAMPS)/package
+
+$(STAMPS)/venv: requirements/ros.txt requirements/dev.txt
+	python3 -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -r requirements/ros.txt -r requirements/dev.txt
+	@if ! command -v cmake >/dev/null; then $(PY) -m pip install --quiet cmake; fi
+	@mkdir -p $(STAMPS) && touch $@
+
+# Our messages, generated and installed into the venv's own prefix like the ROS wheels.
+$(STAMPS)/msgs: $(STAMPS)/venv $(wildcard $(MSGS)/msg/*.msg) $(MSGS)/CMakeLists.txt \
+                $(MSGS)/package.xml $(wildcard $(MSGS)/cmake/*.cmake)
+	rm -rf $(BUILD)
+	PATH="$(abspath $(VENV))/bin:$$PATH" CMAKE_PREFIX_PATH="$(abspath $(VENV))" \
+	AMENT_PREFIX_PATH="$(abspath $(VENV))" cmake -S $(MSGS) -B $(BUILD) \
+	  -DCMAKE_INSTALL_PREFIX="$(abspath $(VENV))" -DPython3_EXECUTABLE="$(abspath $(PY))" \
+	  -DBUILD_TESTING=OFF --log-level=WARNING
+	PATH="$(abspath $(VENV))/bin:$$PATH" cmake --build $(BUILD) -j2
+	cmake --install $(BUILD) > /dev/null
+	@touch $@
+
+$(STAMPS)/package: $(STAMPS)/msgs src/turning_force/pyproject.toml
+	$(PY) -m pip install --quiet --no-build-isolation --no-deps -e src/turning_force
+	@touch $@
+
+run: setup
+	$(VENV)/bin/turning-force run $(EXPERIMENT)
+
+reproduce: setup
+	$(VENV)/bin/turning-force reproduce
+
+lint: setup
+	$(VENV)/bin/ruff check src test
+	$(VENV)/bin/mypy
+
+test: lint
+	$(PY) -m pytest -q test
+
+bench: setup
+	@for f in test/bench/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done
+
+clean:
+	rm -rf $(VENV) build install log

@@ -1,0 +1,249 @@
+"""Cutting force from feed-drive phase currents (Park 1998, Sec. 3; El-Sinawi 2011).
+
+Per block of DAQ samples: u, v, rotor angle -> i_q (Clarke + Park) -> subtract the friction
+current at the measured feed rate (Eq. 25) -> force by the inverse of Eq. 26 -> a filter that gives
+force and force rate to the controller, its state carried across blocks. Two filters:
+
+- ``lowpass``: Butterworth low-pass (Park's preprocessor) and a filtered derivative of its output.
+- ``kalman``: a steady-state Kalman filter on a force / force-rate model driven by white force
+  acceleration (the estimator of El-Sinawi 2011, Sec. 4, on the force alone).
+
+``test/bench/bench_estimator.py`` measures both on noisy currents; the default is the one that
+measured better.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+import scipy.linalg
+from scipy import signal
+
+from turning_force.core.drive import (
+    CurrentBlock,
+    CurrentForceMap,
+    FrictionModel,
+    clarke_park,
+)
+from turning_force.core.settings import Settings, setting
+
+__all__ = [
+    'EstimateStatus',
+    'EstimatorSettings',
+    'ForceEstimate',
+    'ForceEstimator',
+    'calibrate_friction',
+]
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class EstimateStatus(enum.IntEnum):
+    """Matches the ``STATUS_*`` constants of ``turning_force_msgs/ForceEstimate``."""
+
+    OK = 0
+    STALE = 1
+    INVALID_INPUT = 2
+    SATURATED = 3
+
+
+@dataclass(frozen=True)
+class EstimatorSettings(Settings):
+    """The force estimator (``force_estimator`` parameters)."""
+
+    SECTION = 'force_estimator'
+
+    force_filter: str = setting('kalman', 'Filter giving force and force rate',
+                                choices=('lowpass', 'kalman'))
+    lowpass_cutoff_hz: float = setting(20.0, 'Butterworth low-pass cut-off', 'Hz', low=0.0,
+                                       low_open=True)
+    lowpass_order: int = setting(2, 'Butterworth low-pass order', low=1, high=8)
+    derivative_time_constant_s: float = setting(0.01, 'Time constant of the filtered derivative '
+                                                'after the low-pass', 's', low=0.0,
+                                                low_open=True, high=1.0)
+    kalman_force_noise_n: float = setting(4.0, 'Standard deviation of one friction-compensated '
+                                          'force sample (current noise / Eq. 26 slope)', 'N',
+                                          low=0.0, low_open=True)
+    kalman_accel_noise_n_s2: float = setting(2.0e4, 'Standard deviation of the force '
+                                             'acceleration the model allows', 'N/s^2', low=0.0,
+                                             low_open=True)
+    friction_min_feed_mm_min: float = setting(6.0, 'Slowest feed of the calibrated friction '
+                                              'curve (Eq. 25)', 'mm/min', low=0.0, low_open=True)
+    friction_max_feed_mm_min: float = setting(300.0, 'Fastest feed of the calibrated friction '
+                                              'curve', 'mm/min', low=0.0, low_open=True)
+    friction_at_min_feed_a: float = setting(0.60, 'Calibrated friction current at the slowest '
+                                            'feed', 'A', low=-100.0, high=100.0)
+    friction_at_max_feed_a: float = setting(0.35, 'Calibrated friction current at the fastest '
+                                            'feed', 'A', low=-100.0, high=100.0)
+    current_offset_a: float = setting(-0.12432, 'Current at zero force (Park Eq. 26)', 'A',
+                                      low=-100.0, high=100.0)
+    current_per_force_a_n: float = setting(0.00629, 'q-axis current per newton (Park Eq. 26)',
+                                           'A/N', low=0.0, low_open=True)
+    current_range_a: float = setting(30.0, 'Phase-current sensor range; samples beyond it mark '
+                                     'the estimate saturated', 'A', low=0.0, low_open=True)
+
+    def check(self) -> None:
+        if self.friction_max_feed_mm_min <= self.friction_min_feed_mm_min:
+            self.fail('friction_max_feed_mm_min', 'must exceed friction_min_feed_mm_min '
+                      f'({self.friction_min_feed_mm_min})')
+
+    @property
+    def friction(self) -> FrictionModel:
+        return FrictionModel.from_end_points(
+            self.friction_min_feed_mm_min, self.friction_max_feed_mm_min,
+            self.friction_at_min_feed_a, self.friction_at_max_feed_a)
+
+    @property
+    def current_map(self) -> CurrentForceMap:
+        return CurrentForceMap(self.current_offset_a, self.current_per_force_a_n)
+
+
+@dataclass(frozen=True)
+class ForceEstimate:
+    """What the estimator says after a block (the core side of ``ForceEstimate``)."""
+
+    t_s: float
+    force_n: float
+    force_rate_n_s: float
+    current_q_a: float
+    friction_current_a: float
+    status: EstimateStatus = EstimateStatus.OK
+    detail: str = ''
+
+
+class _Lowpass:
+    """Butterworth low-pass and filtered derivative, state kept across blocks."""
+
+    def __init__(self, settings: EstimatorSettings, dt_s: float, first_n: float) -> None:
+        nyquist = 0.5 / dt_s
+        cutoff = min(settings.lowpass_cutoff_hz, 0.9 * nyquist)
+        self._sos = signal.butter(settings.lowpass_order, cutoff, fs=1.0 / dt_s, output='sos')
+        self._zi = signal.sosfilt_zi(self._sos) * first_n
+        alpha = math.exp(-dt_s / settings.derivative_time_constant_s)
+        # y[k] = alpha y[k-1] + (1 - alpha) (x[k] - x[k-1]) / dt: a first-order-lagged difference.
+        self._db = np.array([1.0, -1.0]) * (1.0 - alpha) / dt_s
+        self._da = np.array([1.0, -alpha])
+        self._dzi = signal.lfiltic(self._db, self._da, [0.0], [first_n])
+
+    def __call__(self, force_n: FloatArray) -> tuple[FloatArray, FloatArray]:
+        smooth, self._zi = signal.sosfilt(self._sos, force_n, zi=self._zi)
+        rate, self._dzi = signal.lfilter(self._db, self._da, smooth, zi=self._dzi)
+        return np.asarray(smooth), np.asarray(rate)
+
+
+class _Kalman:
+    """Steady-state Kalman filter for x = [F, dF/dt] under white force acceleration.
+
+    ``x[k+1] = [[1, dt], [0, 1]] x[k] + w``, ``Q = s_a^2 [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]``,
+    measurement ``F[k] + v``, ``R = s_F^2``. The gain is the solution of the discrete Riccati
+    equation, computed once: the filter is then linear and time-invariant.
+    """
+
+    def __init__(self, settings: EstimatorSettings, dt_s: float, first_n: float) -> None:
+        self._phi = np.array([[1.0, dt_s], [0.0, 1.0]])
+        sa2 = settings.kalman_accel_noise_n_s2**2
+        q = sa2 * np.array([[dt_s**4 / 4, dt_s**3 / 2], [dt_s**3 / 2, dt_s**2]])
+        h = np.array([[1.0, 0.0]])
+        r = np.array([[settings.kalman_force_noise_n**2]])
+        p_prior = scipy.linalg.solve_discrete_are(self._phi.T, h.T, q, r)
+        self._gain = (p_prior @ h.T / (h @ p_prior @ h.T + r)).ravel()
+        self._x = np.array([first_n, 0.0])
+
+    def __call__(self, force_n: FloatArray) -> tuple[FloatArray, FloatArray]:
+        out = np.empty((force_n.size, 2))
+        x, phi, gain = self._x, self._phi, self._gain
+        for k, z in enumerate(force_n):
+            x = phi @ x
+            x = x + gain * (z - x[0])
+            out[k] = x
+        self._x = x
+        return out[:, 0], out[:, 1]
+
+
+class ForceEstimator:
+    """Force and force rate from blocks of feed-drive currents.
+
+    A block with non-finite samples, mismatched arrays, a bad or changed sample period, or a
+    stamp not after the previous one is reported ``INVALID_INPUT`` and leaves the filter
+    untouched; the estimate then repeats the last good force, always finite.
+    """
+
+    def __init__(self, settings: EstimatorSettings) -> None:
+        self.settings = settings
+        self._friction = settings.friction
+        self._map = settings.current_map
+        self._filter: _Lowpass | _Kalman | None = None
+        self._dt_s = 0.0
+        self._last_t_s = -math.inf
+        self._last = ForceEstimate(0.0, 0.0, 0.0, 0.0, 0.0, EstimateStatus.STALE, 'no data yet')
+
+    @property
+    def last(self) -> ForceEstimate:
+        return self._last
+
+    def update(self, block: CurrentBlock) -> ForceEstimate:
+        """Process one block; return the estimate at its last sample."""
+        problem = self._check(block)
+        if problem:
+            self._last = ForceEstimate(
+                self._last.t_s, self._last.force_n, self._last.force_rate_n_s,
+                self._last.current_q_a, self._last.friction_current_a,
+                EstimateStatus.INVALID_INPUT, problem)
+            return self._last
+        _, current_q = clarke_park(block.phase_u_a, block.phase_v_a, block.rotor_angle_rad)
+        friction = self._friction.current_a(block.feed_rate_mm_min)
+        raw_force = self._map.force_n(current_q - friction)
+        if self._filter is None:
+            self._dt_s = block.sample_period_s
+            kind = _Kalman if self.settings.force_filter == 'kalman' else _Lowpass
+            self._filter = kind(self.settings, self._dt_s, float(raw_force[0]))
+        force, rate = self._filter(raw_force)
+        peak = max(np.max(np.abs(block.phase_u_a)), np.max(np.abs(block.phase_v_a)))
+        status, detail = EstimateStatus.OK, ''
+        if peak > self.settings.current_range_a:
+            status = EstimateStatus.SATURATED
+            detail = f'phase current {peak:.3g} A beyond the sensor range'
+        self._last_t_s = block.t0_s
+        self._last = ForceEstimate(
+            block.t0_s + (len(block) - 1) * block.sample_period_s,
+            float(force[-1]), float(rate[-1]), float(np.mean(current_q)),
+            float(friction[-1]), status, detail)
+        return self._last
+
+    def _check(self, block: CurrentBlock) -> str:
+        n = len(block)
+        arrays = (block.phase_u_a, block.phase_v_a, block.rotor_angle_rad, block.feed_rate_mm_min)
+        if n == 0 or any(a.size != n for a in arrays):
+            return f'array lengths {[a.size for a in arrays]} differ or are empty'
+        dt = block.sample_period_s
+        if not (math.isfinite(dt) and dt > 0):
+            return f'sample period {dt!r} s is not a positive number'
+        if self._filter is not None and not math.isclose(dt, self._dt_s, rel_tol=1e-6):
+            return f'sample period changed from {self._dt_s!r} s to {dt!r} s'
+        if not math.isfinite(block.t0_s) or block.t0_s <= self._last_t_s:
+            return f'stamp {block.t0_s!r} s is not after the previous {self._last_t_s!r} s'
+        bad = sum(int(np.count_nonzero(~np.isfinite(a))) for a in arrays)
+        if bad:
+            return f'{bad} non-finite samples'
+        return ''
+
+
+def calibrate_friction(
+    air_cuts: Sequence[CurrentBlock], current_map: CurrentForceMap
+) -> FrictionModel:
+    """Eq. 25 from an air cut: blocks taken at two or more constant feeds, no tool contact.
+
+    With no cutting force the friction current is ``i_q`` less Eq. 26's zero-force offset; each
+    block gives one point (its mean feed, its mean friction current).
+    """
+    feeds, currents = [], []
+    for block in air_cuts:
+        _, current_q = clarke_park(block.phase_u_a, block.phase_v_a, block.rotor_angle_rad)
+        feeds.append(float(np.mean(block.feed_rate_mm_min)))
+        currents.append(float(np.mean(current_q)) - current_map.offset_a)
+    return FrictionModel.calibrate(feeds, currents)

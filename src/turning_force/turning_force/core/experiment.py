@@ -1,0 +1,209 @@
+"""An experiment: one ROS 2 parameters file, read into validated settings for every node.
+
+The file is what ``ros2 run ... --ros-args --params-file`` reads on the lathe PC::
+
+    /**:                      # shared by every node that declares the parameter
+      ros__parameters: {spindle_speed_rpm: 600.0, programmed_feed_mm_rev: 0.2, ...}
+    experiment:               # the run itself: duration, metrics, the paper's figure
+      ros__parameters: {...}
+    lathe_sim: ...  force_estimator: ...  force_controller: ...  pmc_bridge: ...
+    session_recorder: ...
+
+Keys under a node's own section must be parameters that node declares; a typo is an error, not a
+silently ignored line. Keys under ``/**`` reach every section that knows them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+from turning_force.core.control import ControllerSettings
+from turning_force.core.errors import ConfigError
+from turning_force.core.estimation import EstimatorSettings
+from turning_force.core.metrics import MetricSettings
+from turning_force.core.overrides import TABLES
+from turning_force.core.plant import PlantSettings
+from turning_force.core.settings import Settings, setting
+
+__all__ = ['BridgeSettings', 'Experiment', 'RunSettings', 'load_experiment', 'parse_set']
+
+SHARED = '/**'
+_T = TypeVar('_T')
+
+
+@dataclass(frozen=True)
+class RunSettings(Settings):
+    """The run (``experiment`` section): what it reproduces, how long, how it is scored."""
+
+    SECTION = 'experiment'
+
+    name: str = setting('experiment', 'Short name of the experiment')
+    description: str = setting('', 'What the experiment shows')
+    paper_figure: str = setting('', 'The paper figure it reproduces, if any')
+    paper_steady_mean_abs_error_n: float = setting(
+        0.0, "The paper's average tracking error for this figure; 0: the paper gives none", 'N',
+        low=0.0)
+    duration_s: float = setting(12.0, 'Simulated time', 's', low=0.0, low_open=True, high=3600.0)
+    control_period_s: float = setting(0.01, 'Control period', 's', low=1e-4, high=1.0)
+    settle_window_s: float = setting(1.0, 'Left out of the steady metrics after each change', 's',
+                                     low=0.0)
+    allowed_error_n: float = setting(10.0, 'Allowed tracking error: the band of the settling '
+                                     'time and of the figures', 'N', low=0.0, low_open=True)
+
+
+@dataclass(frozen=True)
+class BridgeSettings(Settings):
+    """The PMC bridge (``pmc_bridge`` parameters)."""
+
+    SECTION = 'pmc_bridge'
+
+    override_table: str = setting('fanuc_0t_4bit', 'Override table of the PMC',
+                                  choices=tuple(TABLES))
+    control_period_s: float = setting(0.01, 'Control period', 's', low=1e-4, high=1.0)
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """Every node's settings for one run, and the parameter file they came from."""
+
+    source: str
+    run: RunSettings
+    plant: PlantSettings
+    estimator: EstimatorSettings
+    controller: ControllerSettings
+    bridge: BridgeSettings
+    sections: Mapping[str, Mapping[str, Any]]
+
+    @property
+    def samples_per_block(self) -> int:
+        return round(self.run.control_period_s * self.plant.sample_rate_hz)
+
+    @property
+    def metric_settings(self) -> MetricSettings:
+        return MetricSettings(self.run.settle_window_s, self.run.allowed_error_n)
+
+    def resolved_params(self) -> dict[str, dict[str, Any]]:
+        """Every node's full parameter set, defaults included: what the run used."""
+        return {
+            s.SECTION: s.to_params()
+            for s in (self.run, self.plant, self.estimator, self.controller, self.bridge)
+        }
+
+    def with_sets(self, assignments: Sequence[str]) -> Experiment:
+        """A copy with ``node.param=value`` assignments applied (values parsed as YAML)."""
+        sections = {name: dict(params) for name, params in self.sections.items()}
+        for text in assignments:
+            node, param, value = parse_set(text)
+            if node == SHARED:
+                raise ConfigError(f'--set {text!r}: name a node, not {SHARED}')
+            sections.setdefault(node, {})[param] = value
+        return _build(self.source, sections)
+
+
+SETTINGS_OF: Mapping[str, type[Settings]] = {
+    'experiment': RunSettings,
+    'lathe_sim': PlantSettings,
+    'force_estimator': EstimatorSettings,
+    'force_controller': ControllerSettings,
+    'pmc_bridge': BridgeSettings,
+}
+# Sections read by nodes whose parameters are not part of the core's settings.
+OTHER_SECTIONS = ('session_recorder',)
+
+
+def parse_set(text: str) -> tuple[str, str, Any]:
+    """``node.param=value`` -> (node, param, value), the value parsed as YAML."""
+    target, sep, raw = text.partition('=')
+    node, dot, param = target.strip().rpartition('.')
+    if not (sep and dot and node and param):
+        raise ConfigError(f'--set {text!r}: expected node.param=value')
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'--set {text!r}: value is not valid YAML: {exc}') from exc
+    return node, param, value
+
+
+def load_experiment(path: str | Path) -> Experiment:
+    """Read and validate an experiment parameters file."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f'{path}: cannot read: {exc.strerror}') from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'{path}: not valid YAML: {exc}') from exc
+    if not isinstance(data, dict):
+        raise ConfigError(f'{path}: expected a mapping of node names, got {type(data).__name__}')
+    sections: dict[str, dict[str, Any]] = {}
+    for node, body in data.items():
+        name = str(node) if node == SHARED else str(node).rstrip('/').rsplit('/', 1)[-1]
+        params = body.get('ros__parameters') if isinstance(body, dict) else None
+        if not isinstance(params, dict):
+            raise ConfigError(f'{path}: {node}: expected a ros__parameters mapping')
+        if name != SHARED and name not in SETTINGS_OF and name not in OTHER_SECTIONS:
+            known = ', '.join([SHARED, *SETTINGS_OF, *OTHER_SECTIONS])
+            raise ConfigError(f'{path}: {node}: unknown node; known: {known}')
+        sections.setdefault(name, {}).update(params)
+    try:
+        return _build(str(path), sections)
+    except ConfigError as exc:
+        raise ConfigError(f'{path}: {exc}') from exc
+
+
+def _build(source: str, sections: Mapping[str, Mapping[str, Any]]) -> Experiment:
+    shared = dict(sections.get(SHARED, {}))
+    unused = set(shared)
+    built: dict[str, Settings] = {}
+    for name, kind in SETTINGS_OF.items():
+        known = kind.fields()
+        params = {k: v for k, v in shared.items() if k in known}
+        unused -= set(params)
+        params.update(sections.get(name, {}))
+        built[name] = kind.from_params(params)
+    if unused:
+        raise ConfigError(f'{SHARED}: {sorted(unused)}: no node declares these parameters')
+    experiment = Experiment(
+        source=source,
+        run=_as(built['experiment'], RunSettings),
+        plant=_as(built['lathe_sim'], PlantSettings),
+        estimator=_as(built['force_estimator'], EstimatorSettings),
+        controller=_as(built['force_controller'], ControllerSettings),
+        bridge=_as(built['pmc_bridge'], BridgeSettings),
+        sections={k: dict(v) for k, v in sections.items()},
+    )
+    _check_consistent(experiment)
+    return experiment
+
+
+def _as(value: object, kind: type[_T]) -> _T:
+    assert isinstance(value, kind)
+    return value
+
+
+def _check_consistent(e: Experiment) -> None:
+    period = e.run.control_period_s
+    per_block = period * e.plant.sample_rate_hz
+    if e.samples_per_block < 1 or abs(per_block - e.samples_per_block) > 1e-6 * per_block:
+        raise ConfigError(
+            f'lathe_sim.sample_rate_hz = {e.plant.sample_rate_hz!r}: control_period_s = '
+            f'{period!r} must span a whole number of samples (got {per_block:g})'
+        )
+    for section in (e.controller, e.bridge):
+        if section.control_period_s != period:
+            raise ConfigError(
+                f'{section.SECTION}.control_period_s = {section.control_period_s!r}: differs '
+                f'from experiment.control_period_s = {period!r}; set it once under {SHARED}'
+            )
+    if e.controller.override_table != e.bridge.override_table:
+        raise ConfigError(
+            f'force_controller.override_table = {e.controller.override_table!r}: differs from '
+            f'pmc_bridge.override_table = {e.bridge.override_table!r}; set it once under '
+            f'{SHARED}'
+        )
+

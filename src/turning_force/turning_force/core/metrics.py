@@ -1,0 +1,118 @@
+"""Regulation metrics, named as DESIGN.md names them (the JSON keys of ``--json``).
+
+All are computed from series sampled at the control period, from engagement (the first sample
+with the tool in the workpiece) on. "Changes" are engagement, every change of depth of cut and
+every change of reference force.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ['METRIC_NAMES', 'MetricSettings', 'compute_metrics']
+
+FloatArray = npt.NDArray[np.float64]
+
+METRIC_NAMES = (
+    'mean_abs_error_n',
+    'steady_mean_abs_error_n',
+    'max_abs_error_n',
+    'overshoot_n',
+    'settling_time_s',
+    'ripple_p2p_n',
+    'override_changes_per_s',
+)
+
+
+@dataclass(frozen=True)
+class MetricSettings:
+    """``settle_window_s``: time left out after each change in the steady figures;
+    ``allowed_error_n``: the band for settling time; ``ripple_window_s``: the span the ripple is
+    measured over before each depth change and at the end."""
+
+    settle_window_s: float = 1.0
+    allowed_error_n: float = 10.0
+    ripple_window_s: float = 1.0
+
+
+def compute_metrics(
+    t_s: FloatArray,
+    force_n: FloatArray,
+    reference_n: FloatArray,
+    depth_mm: FloatArray,
+    applied_override_pct: FloatArray,
+    depth_change_times_s: Sequence[float],
+    settings: MetricSettings,
+) -> dict[str, float]:
+    """The DESIGN.md metrics of one run.
+
+    - ``mean_abs_error_n``: mean |F - F_ref| from engagement, transients included.
+    - ``steady_mean_abs_error_n``: the same, leaving out ``settle_window_s`` after each change;
+      what the papers call the average tracking error.
+    - ``max_abs_error_n``: largest |F - F_ref| once the engagement transient is over (the first
+      settle window), so that it measures the depth steps, not the tool entering the cut.
+    - ``overshoot_n``: largest excursion above F_ref after engagement or a depth change.
+    - ``settling_time_s``: worst time after a depth change until |F - F_ref| stays within
+      ``allowed_error_n``; the whole span to the next change if it never does.
+    - ``ripple_p2p_n``: largest peak-to-peak force in the ``ripple_window_s`` before each depth
+      change and before the end, settle windows left out (a transient is not ripple).
+    - ``override_changes_per_s``: changes of the applied override per second of cutting.
+    """
+    engaged = depth_mm > 0
+    if not np.any(engaged):
+        raise ValueError('the tool never engages: no metrics')
+    start = float(t_s[np.argmax(engaged)])
+    end = float(t_s[-1])
+    keep = t_s >= start
+    t, force, ref = t_s[keep], force_n[keep], reference_n[keep]
+    applied = applied_override_pct[keep]
+    error = force - ref
+    abs_error = np.abs(error)
+
+    ref_changes = t[1:][np.diff(ref) != 0].tolist()
+    depth_changes = sorted(c for c in depth_change_times_s if start < c <= end)
+    changes = sorted({start, *depth_changes, *ref_changes})
+    settling = np.zeros(t.size, dtype=bool)
+    for c in changes:
+        settling |= (t >= c) & (t < c + settings.settle_window_s)
+    steady = ~settling
+    after_engagement = t >= start + settings.settle_window_s
+
+    overshoot, settling_time = 0.0, 0.0
+    bounds = [start, *depth_changes, end + 1e-9]
+    for k, (c0, c1) in enumerate(itertools.pairwise(bounds)):
+        span = (t >= c0) & (t < c1)
+        if not np.any(span):
+            continue
+        overshoot = max(overshoot, float(np.max(error[span])))
+        if k == 0:
+            continue  # settling is measured after depth changes
+        outside = t[span][abs_error[span] > settings.allowed_error_n]
+        if outside.size:
+            last = float(outside[-1])
+            finished = last < float(t[span][-1])
+            settling_time = max(settling_time, (last + (t[1] - t[0]) if finished else c1) - c0)
+
+    ripple = 0.0
+    for c in [*depth_changes, end + 1e-9]:
+        window = (t >= c - settings.ripple_window_s) & (t < c) & steady
+        if np.count_nonzero(window) > 1:
+            ripple = max(ripple, float(np.ptp(force[window])))
+
+    duration = end - start
+    changes_count = int(np.count_nonzero(np.diff(applied)))
+    return {
+        'mean_abs_error_n': float(np.mean(abs_error)),
+        'steady_mean_abs_error_n': float(np.mean(abs_error[steady])) if np.any(steady) else 0.0,
+        'max_abs_error_n': float(np.max(abs_error[after_engagement]))
+        if np.any(after_engagement) else float(np.max(abs_error)),
+        'overshoot_n': max(overshoot, 0.0),
+        'settling_time_s': float(min(settling_time, duration)),
+        'ripple_p2p_n': ripple,
+        'override_changes_per_s': changes_count / duration if duration > 0 else 0.0,
+    }

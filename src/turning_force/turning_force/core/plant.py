@@ -1,0 +1,251 @@
+"""The lathe as a plant: PMC, feed servo, cutting process and feed-drive currents.
+
+Signal chain, sampled at the DAQ rate and stepped one control block at a time::
+
+    override [%] -> PMC dead time -> v_c = override * f_prog * N [mm/min]
+      -> CNC servo (Park Eq. 2, first order; or Hwang & Chen Eq. 1, second order) -> v_a
+      -> cutting process F = k d (v_a / N)^g / (1 + tau_c s)   (Park Eq. 1; Hwang & Chen Eq. 3)
+      -> q-axis current (Park Eq. 26) + friction (Park Eq. 25) -> u, v phase currents + noise
+
+The linear process of Park (``g = 1``, ``k = K_s``) and the power law of Hwang & Chen
+(``g = 0.95``, ``k = k_f``) are one model. Linear blocks are discretised exactly (zero-order hold)
+once and run with :func:`scipy.signal.lfilter`, their state carried from block to block.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy import signal
+
+from turning_force.core.drive import (
+    CurrentBlock,
+    CurrentForceMap,
+    FrictionModel,
+    inverse_park_clarke,
+    rotor_angle_rad,
+)
+from turning_force.core.settings import Settings, setting
+
+__all__ = ['DepthProfile', 'LathePlant', 'PlantBlock', 'PlantSettings']
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PlantSettings(Settings):
+    """The simulated lathe (``lathe_sim`` parameters)."""
+
+    SECTION = 'lathe_sim'
+
+    seed: int = setting(1, 'Seed of the sensor and process noise', low=0)
+    sample_rate_hz: float = setting(1000.0, 'DAQ sample rate of the phase currents', 'Hz',
+                                    low=10.0, high=100000.0)
+    spindle_speed_rpm: float = setting(600.0, 'Spindle speed N', 'rpm', low=0.0, low_open=True,
+                                       high=20000.0)
+    programmed_feed_mm_rev: float = setting(0.2, 'Programmed feed (the 100 % override)',
+                                            'mm/rev', low=0.0, low_open=True, high=5.0)
+    specific_cutting_force_n_mm2: float = setting(
+        2200.0, 'Specific cutting force K_s (Park Eq. 1) or k_f (Hwang & Chen Eq. 3)',
+        'N/mm^2', low=0.0, low_open=True, high=20000.0)
+    cutting_exponent: float = setting(1.0, 'Feed exponent g of F = k d f^g (1: linear, Park)',
+                                      low=0.1, high=1.5)
+    cutting_time_constant_s: float = setting(
+        0.05, 'Cutting-process time constant tau_c (Park Eq. 1); 0 for a static process', 's',
+        low=0.0, high=10.0)
+    servo_model: str = setting('first_order', 'CNC feed-servo model',
+                               choices=('first_order', 'second_order'))
+    servo_time_constant_s: float = setting(0.17, 'First-order servo time constant tau_s '
+                                           '(Park Eq. 2)', 's', low=0.0, low_open=True, high=10.0)
+    servo_natural_freq_rad_s: float = setting(60.0, 'Second-order servo natural frequency w_n '
+                                              '(Hwang & Chen Eq. 1)', 'rad/s', low=0.0,
+                                              low_open=True, high=1e4)
+    servo_damping: float = setting(0.7, 'Second-order servo damping ratio xi', low=0.0,
+                                   low_open=True, high=10.0)
+    pmc_dead_time_s: float = setting(0.0, 'PMC dead time before the servo sees a new override '
+                                     '(Kim: 0.08 s)', 's', low=0.0, high=2.0)
+    depth_times_s: tuple[float, ...] = setting([0.0, 4.0, 8.0], 'Times of the depth-of-cut '
+                                               'break points', 's', low=0.0)
+    depth_mm: tuple[float, ...] = setting([1.0, 2.0, 3.0], 'Depth of cut at each break point',
+                                          'mm', low=0.0, high=50.0)
+    depth_interpolation: str = setting('step', 'Depth between break points: held (steps) or '
+                                       'linear (taper)', choices=('step', 'linear'))
+    friction_min_feed_mm_min: float = setting(6.0, 'Slowest feed of the friction curve (Eq. 25)',
+                                              'mm/min', low=0.0, low_open=True)
+    friction_max_feed_mm_min: float = setting(300.0, 'Fastest feed of the friction curve',
+                                              'mm/min', low=0.0, low_open=True)
+    friction_at_min_feed_a: float = setting(0.60, 'Friction current at the slowest feed', 'A',
+                                            low=-100.0, high=100.0)
+    friction_at_max_feed_a: float = setting(0.35, 'Friction current at the fastest feed', 'A',
+                                            low=-100.0, high=100.0)
+    current_offset_a: float = setting(-0.12432, 'Current at zero force (Park Eq. 26)', 'A',
+                                      low=-100.0, high=100.0)
+    current_per_force_a_n: float = setting(0.00629, 'q-axis current per newton of cutting force '
+                                           '(Park Eq. 26)', 'A/N', low=0.0, low_open=True)
+    current_noise_a: float = setting(0.02, 'Standard deviation of the phase-current sensor noise',
+                                     'A', low=0.0, high=10.0)
+    force_noise_fraction: float = setting(0.0, 'Cutting-force fluctuation, uniform within '
+                                          '+/- this fraction (Hwang & Chen Example 2: 0.01)',
+                                          low=0.0, high=0.5)
+    pole_pairs: int = setting(4, 'Pole pairs of the feed servo motor', low=1, high=64)
+    ball_screw_pitch_mm: float = setting(12.0, 'Ball-screw pitch (motor on the screw)', 'mm',
+                                         low=0.0, low_open=True)
+
+    def check(self) -> None:
+        if len(self.depth_times_s) != len(self.depth_mm) or not self.depth_mm:
+            self.fail('depth_mm', f'needs one value per depth_times_s entry '
+                                  f'({len(self.depth_times_s)})')
+        if self.depth_times_s[0] != 0.0:
+            self.fail('depth_times_s', 'must start at 0')
+        if any(b <= a for a, b in zip(self.depth_times_s, self.depth_times_s[1:], strict=False)):
+            self.fail('depth_times_s', 'must be strictly increasing')
+        if self.friction_max_feed_mm_min <= self.friction_min_feed_mm_min:
+            self.fail('friction_max_feed_mm_min', 'must exceed friction_min_feed_mm_min '
+                      f'({self.friction_min_feed_mm_min})')
+
+    @property
+    def programmed_feed_rate_mm_min(self) -> float:
+        return self.programmed_feed_mm_rev * self.spindle_speed_rpm
+
+    @property
+    def depth_profile(self) -> DepthProfile:
+        return DepthProfile(self.depth_times_s, self.depth_mm, self.depth_interpolation)
+
+    @property
+    def friction(self) -> FrictionModel:
+        return FrictionModel.from_end_points(
+            self.friction_min_feed_mm_min, self.friction_max_feed_mm_min,
+            self.friction_at_min_feed_a, self.friction_at_max_feed_a)
+
+    @property
+    def current_map(self) -> CurrentForceMap:
+        return CurrentForceMap(self.current_offset_a, self.current_per_force_a_n)
+
+
+@dataclass(frozen=True)
+class DepthProfile:
+    """Depth of cut over time: steps (Park Fig. 6) or a linear taper between break points."""
+
+    times_s: tuple[float, ...]
+    depth_mm: tuple[float, ...]
+    interpolation: str = 'step'
+
+    def at(self, t_s: FloatArray) -> FloatArray:
+        """Depth of cut [mm] at times ``t_s``."""
+        times, depths = np.asarray(self.times_s), np.asarray(self.depth_mm, dtype=np.float64)
+        if self.interpolation == 'linear':
+            out: FloatArray = np.interp(t_s, times, depths)
+            return out
+        index = np.searchsorted(times, t_s, side='right') - 1
+        return depths[np.clip(index, 0, depths.size - 1)]
+
+    def change_times_s(self) -> tuple[float, ...]:
+        """Times after the start at which the depth starts to change (steps or taper ends)."""
+        changes = []
+        for k in range(1, len(self.times_s)):
+            if self.depth_mm[k] != self.depth_mm[k - 1]:
+                start = self.times_s[k] if self.interpolation == 'step' else self.times_s[k - 1]
+                changes.append(start)
+        return tuple(sorted(set(changes)))
+
+
+@dataclass(frozen=True)
+class PlantBlock:
+    """One control block of simulated samples: what the DAQ sees and the ground truth."""
+
+    currents: CurrentBlock
+    force_n: FloatArray
+    depth_mm: FloatArray
+    feed_mm_rev: FloatArray
+    override_pct: float
+
+
+class _Lti:
+    """A discrete SISO transfer function with its state kept across calls."""
+
+    def __init__(self, num: FloatArray, den: FloatArray, initial_output: float) -> None:
+        self._b, self._a = num, den
+        # Start at the steady state that gives ``initial_output`` for a constant input.
+        dc_gain = float(np.sum(num) / np.sum(den))
+        self._zi = signal.lfiltic(self._b, self._a, np.full(len(den), initial_output),
+                                  np.full(len(num), initial_output / dc_gain))
+
+    def __call__(self, x: FloatArray) -> FloatArray:
+        y, self._zi = signal.lfilter(self._b, self._a, x, zi=self._zi)
+        out: FloatArray = np.asarray(y, dtype=np.float64)
+        return out
+
+    @classmethod
+    def zoh(cls, num: list[float], den: list[float], dt_s: float,
+            initial_output: float) -> _Lti:
+        """Exact zero-order-hold discretisation of ``num(s) / den(s)``."""
+        numd, dend, _ = signal.cont2discrete((num, den), dt_s, method='zoh')
+        return cls(np.ravel(numd), np.ravel(dend), initial_output)
+
+
+class LathePlant:
+    """The simulated lathe, stepped one control block at a time.
+
+    At ``t = 0`` the axis is already feeding at the initial override (approach in air) and the
+    tool enters the workpiece: the force starts at zero and rises with the process lag.
+    Deterministic for given settings and seed.
+    """
+
+    def __init__(self, settings: PlantSettings, samples_per_block: int,
+                 initial_override_pct: float = 100.0) -> None:
+        self.settings = settings
+        self.samples_per_block = samples_per_block
+        self._dt = 1.0 / settings.sample_rate_hz
+        self._profile = settings.depth_profile
+        self._friction = settings.friction
+        self._map = settings.current_map
+        self._rng = np.random.default_rng(settings.seed)
+        v0 = initial_override_pct / 100.0 * settings.programmed_feed_rate_mm_min
+        if settings.servo_model == 'first_order':
+            self._servo = _Lti.zoh([1.0], [settings.servo_time_constant_s, 1.0], self._dt, v0)
+        else:
+            wn, xi = settings.servo_natural_freq_rad_s, settings.servo_damping
+            self._servo = _Lti.zoh([wn**2], [1.0, 2 * xi * wn, wn**2], self._dt, v0)
+        tau_c = settings.cutting_time_constant_s
+        self._process = (_Lti.zoh([1.0], [tau_c, 1.0], self._dt, 0.0) if tau_c > 0 else None)
+        delay = round(settings.pmc_dead_time_s / self._dt)
+        self._pending_mm_min = np.full(delay, v0)
+        self._position_mm = 0.0
+        self._k = 0
+
+    @property
+    def time_s(self) -> float:
+        """Time of the next sample."""
+        return self._k * self._dt
+
+    def step(self, override_pct: float) -> PlantBlock:
+        """Apply ``override_pct`` for one block and return its samples."""
+        s, n, dt = self.settings, self.samples_per_block, self._dt
+        t = (self._k + np.arange(n, dtype=np.float64)) * dt
+        commanded = np.full(n, override_pct / 100.0 * s.programmed_feed_rate_mm_min)
+        # The PMC passes each command on after its dead time.
+        queue = np.concatenate([self._pending_mm_min, commanded])
+        servo_in, self._pending_mm_min = queue[:n], queue[n:]
+        feed_rate = self._servo(servo_in)
+        position = self._position_mm + np.cumsum(feed_rate) * dt / 60.0
+        self._position_mm = float(position[-1])
+
+        depth = self._profile.at(t)
+        feed = np.maximum(feed_rate, 0.0) / s.spindle_speed_rpm
+        static_force = s.specific_cutting_force_n_mm2 * depth * feed**s.cutting_exponent
+        force = self._process(static_force) if self._process is not None else static_force
+        felt = force
+        if s.force_noise_fraction > 0:
+            felt = force * (1.0 + self._rng.uniform(-1.0, 1.0, n) * s.force_noise_fraction)
+        current_q = self._map.current_a(felt) + self._friction.current_a(feed_rate)
+        angle = rotor_angle_rad(position, s.ball_screw_pitch_mm, s.pole_pairs)
+        phase_u, phase_v = inverse_park_clarke(np.zeros(n), current_q, angle)
+        if s.current_noise_a > 0:
+            phase_u = phase_u + self._rng.normal(0.0, s.current_noise_a, n)
+            phase_v = phase_v + self._rng.normal(0.0, s.current_noise_a, n)
+        block = CurrentBlock(float(t[0]), dt, phase_u, phase_v, angle, feed_rate)
+        self._k += n
+        return PlantBlock(block, force, depth, feed, override_pct)
+

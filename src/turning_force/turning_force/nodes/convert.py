@@ -1,0 +1,63 @@
+"""Message <-> core conversion, in one place (the core never sees a message or a ``Time``)."""
+
+from __future__ import annotations
+
+import numpy as np
+from builtin_interfaces.msg import Time as TimeMsg
+from turning_force_msgs.msg import ForceEstimate as ForceEstimateMsg
+from turning_force_msgs.msg import ServoCurrents
+
+from turning_force.core.drive import CurrentBlock
+from turning_force.core.estimation import ForceEstimate
+
+__all__ = [
+    'block_to_servo_currents',
+    'estimate_to_msg',
+    'seconds_to_stamp',
+    'servo_currents_to_block',
+    'stamp_to_seconds',
+]
+
+
+def stamp_to_seconds(stamp: TimeMsg) -> float:
+    return float(stamp.sec + stamp.nanosec * 1e-9)
+
+
+def seconds_to_stamp(seconds: float) -> TimeMsg:
+    nanoseconds = round(seconds * 1e9)
+    return TimeMsg(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+
+
+def servo_currents_to_block(msg: ServoCurrents) -> CurrentBlock:
+    return CurrentBlock(
+        t0_s=stamp_to_seconds(msg.header.stamp),
+        sample_period_s=msg.sample_period_s,
+        phase_u_a=np.asarray(msg.phase_u_a, dtype=float),
+        phase_v_a=np.asarray(msg.phase_v_a, dtype=float),
+        rotor_angle_rad=np.asarray(msg.rotor_angle_rad, dtype=float),
+        feed_rate_mm_min=np.asarray(msg.feed_rate_mm_min, dtype=float),
+    )
+
+
+def block_to_servo_currents(block: CurrentBlock, frame_id: str = '') -> ServoCurrents:
+    msg = ServoCurrents()
+    msg.header.stamp = seconds_to_stamp(block.t0_s)
+    msg.header.frame_id = frame_id
+    msg.sample_period_s = block.sample_period_s
+    msg.phase_u_a = block.phase_u_a
+    msg.phase_v_a = block.phase_v_a
+    msg.rotor_angle_rad = block.rotor_angle_rad
+    msg.feed_rate_mm_min = block.feed_rate_mm_min
+    return msg
+
+
+def estimate_to_msg(estimate: ForceEstimate) -> ForceEstimateMsg:
+    msg = ForceEstimateMsg()
+    msg.header.stamp = seconds_to_stamp(estimate.t_s)
+    msg.force_n = estimate.force_n
+    msg.force_rate_n_s = estimate.force_rate_n_s
+    msg.current_q_a = estimate.current_q_a
+    msg.friction_current_a = estimate.friction_current_a
+    msg.status = int(estimate.status)
+    msg.detail = estimate.detail
+    return msg

@@ -1,0 +1,147 @@
+"""Force from currents (Park 1998 Sec. 3): accuracy, friction, filter state, bad blocks."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from turning_force.core.drive import CurrentBlock
+from turning_force.core.estimation import (
+    EstimateStatus,
+    EstimatorSettings,
+    ForceEstimator,
+    calibrate_friction,
+)
+from turning_force.core.plant import LathePlant, PlantSettings
+
+FILTERS = ['lowpass', 'kalman']
+
+
+def blocks_of(settings, overrides, per_block=10):
+    plant = LathePlant(settings, per_block, overrides[0])
+    return [plant.step(p) for p in overrides]
+
+
+@pytest.mark.parametrize('force_filter', FILTERS)
+def test_steady_force_is_recovered_from_the_currents(force_filter):
+    # Noise-free: the estimate equals the true force once the filter has settled, because the
+    # estimator inverts the plant's own Eqs. 25-26 (same coefficients).
+    plant = PlantSettings(current_noise_a=0.0, depth_times_s=(0.0,), depth_mm=(2.0,))
+    estimator = ForceEstimator(EstimatorSettings(force_filter=force_filter))
+    for block in blocks_of(plant, [100.0] * 150):
+        estimate = estimator.update(block.currents)
+    assert estimate.status == EstimateStatus.OK
+    assert estimate.force_n == pytest.approx(block.force_n[-1], abs=0.01)
+    assert estimate.force_rate_n_s == pytest.approx(0.0, abs=0.5)
+
+
+@pytest.mark.parametrize('force_filter', FILTERS)
+def test_noise_is_filtered(force_filter):
+    # 0.02 A per phase is about 4 N of force noise a sample; the filtered estimate must be
+    # several times quieter than that.
+    plant = PlantSettings(current_noise_a=0.02, depth_times_s=(0.0,), depth_mm=(2.0,))
+    estimator = ForceEstimator(EstimatorSettings(force_filter=force_filter))
+    errors = []
+    for k, block in enumerate(blocks_of(plant, [100.0] * 300)):
+        estimate = estimator.update(block.currents)
+        if k >= 100:
+            errors.append(estimate.force_n - block.force_n[-1])
+    assert np.std(errors) < 1.5
+
+
+def test_friction_compensation_matters():
+    # An air cut (no depth): with Eq. 25 compensated the force reads zero; without, the friction
+    # current reads as force: 0.35..0.6 A / 0.00629 A/N is 55..95 N.
+    plant = PlantSettings(current_noise_a=0.0, depth_times_s=(0.0,), depth_mm=(0.0,))
+    blocks = blocks_of(plant, [100.0] * 100)
+    compensated = ForceEstimator(EstimatorSettings())
+    uncompensated = ForceEstimator(EstimatorSettings(friction_at_min_feed_a=0.0,
+                                                     friction_at_max_feed_a=0.0))
+    for block in blocks:
+        good, bad = compensated.update(block.currents), uncompensated.update(block.currents)
+    assert good.force_n == pytest.approx(0.0, abs=0.01)
+    friction = plant.friction.current_a(np.array([120.0]))[0]
+    assert bad.force_n == pytest.approx(friction / 0.00629, rel=1e-3)
+
+
+def test_friction_calibrated_from_a_simulated_air_cut():
+    # Air cut at five feeds, noisy currents: Eq. 25's a and b come back within 2 %.
+    plant = PlantSettings(current_noise_a=0.02, depth_times_s=(0.0,), depth_mm=(0.0,),
+                          programmed_feed_mm_rev=0.5)
+    samples = []
+    for pct in (2.0, 10.0, 30.0, 60.0, 100.0):   # 6 .. 300 mm/min
+        steady = blocks_of(plant, [pct] * 200, per_block=100)[100:]
+        samples.append(CurrentBlock(
+            0.0, 1e-3, *(np.concatenate([getattr(b.currents, f) for b in steady])
+                         for f in ('phase_u_a', 'phase_v_a', 'rotor_angle_rad',
+                                   'feed_rate_mm_min'))))
+    fitted = calibrate_friction(samples, plant.current_map)
+    truth = plant.friction
+    assert fitted.b_a == pytest.approx(truth.b_a, rel=0.02)
+    assert fitted.a_a_per_mm_min2 == pytest.approx(truth.a_a_per_mm_min2, rel=0.02)
+
+
+@pytest.mark.parametrize('force_filter', FILTERS)
+def test_filter_state_carries_across_blocks(force_filter):
+    # Ten blocks of ten samples give exactly what one block of a hundred gives.
+    plant = PlantSettings(depth_times_s=(0.0, 0.05), depth_mm=(1.0, 2.0))
+    blocks = blocks_of(plant, [100.0] * 10)
+    split = ForceEstimator(EstimatorSettings(force_filter=force_filter))
+    for b in blocks:
+        last_split = split.update(b.currents)
+    joined = ForceEstimator(EstimatorSettings(force_filter=force_filter))
+    fields = ('phase_u_a', 'phase_v_a', 'rotor_angle_rad', 'feed_rate_mm_min')
+    whole = CurrentBlock(0.0, 1e-3, *(np.concatenate([getattr(b.currents, f) for b in blocks])
+                                      for f in fields))
+    last_joined = joined.update(whole)
+    assert last_split.force_n == pytest.approx(last_joined.force_n, rel=1e-12)
+    assert last_split.force_rate_n_s == pytest.approx(last_joined.force_rate_n_s, rel=1e-9)
+
+
+@pytest.mark.parametrize('force_filter', FILTERS)
+def test_force_rate_follows_a_ramp(force_filter):
+    # A taper makes the force rise at a constant rate: 2200 N/mm^2 * 0.2 mm * 1 mm/s = 440 N/s.
+    plant = PlantSettings(current_noise_a=0.0, depth_times_s=(0.0, 3.0),
+                          depth_mm=(1.0, 4.0), depth_interpolation='linear')
+    estimator = ForceEstimator(EstimatorSettings(force_filter=force_filter))
+    for block in blocks_of(plant, [100.0] * 200):
+        estimate = estimator.update(block.currents)
+    assert estimate.force_rate_n_s == pytest.approx(440.0, rel=0.01)
+
+
+def _block(**changes):
+    n = 10
+    base = CurrentBlock(1.0, 1e-3, np.full(n, 0.1), np.full(n, 0.2), np.zeros(n),
+                        np.full(n, 120.0))
+    return dataclasses.replace(base, **changes)
+
+
+@pytest.mark.parametrize(('changes', 'match'), [
+    ({'phase_u_a': np.array([0.1] * 9 + [math.nan])}, '1 non-finite samples'),
+    ({'feed_rate_mm_min': np.array([math.inf] * 10)}, '10 non-finite samples'),
+    ({'phase_v_a': np.zeros(3)}, 'lengths'),
+    ({'sample_period_s': 0.0}, 'sample period 0.0'),
+    ({'t0_s': 0.5}, 'stamp 0.5 s is not after'),
+    ({'t0_s': math.nan}, 'stamp nan'),
+    ({'sample_period_s': 2e-3}, 'sample period changed'),
+])
+def test_bad_blocks_are_invalid_and_never_give_a_non_finite_force(changes, match):
+    estimator = ForceEstimator(EstimatorSettings())
+    good = estimator.update(_block())
+    assert good.status == EstimateStatus.OK
+    bad = estimator.update(_block(**{'t0_s': 2.0, **changes}))
+    assert bad.status == EstimateStatus.INVALID_INPUT
+    assert match in bad.detail
+    assert bad.force_n == good.force_n and math.isfinite(bad.force_rate_n_s)
+    # The filter was not touched: the next good block continues from the last good state.
+    reference = ForceEstimator(EstimatorSettings())
+    reference.update(_block())
+    assert estimator.update(_block(t0_s=3.0)).force_n == reference.update(_block(t0_s=3.0)).force_n
+
+
+def test_sensor_range_marks_saturation():
+    estimator = ForceEstimator(EstimatorSettings(current_range_a=5.0))
+    estimate = estimator.update(_block(phase_u_a=np.full(10, 6.0)))
+    assert estimate.status == EstimateStatus.SATURATED
+    assert '6 A' in estimate.detail
