@@ -4,13 +4,15 @@ The file is what ``ros2 run ... --ros-args --params-file`` reads on the lathe PC
 
     /**:                      # shared by every node that declares the parameter
       ros__parameters: {spindle_speed_rpm: 600.0, programmed_feed_mm_rev: 0.2, ...}
-    experiment:               # the run itself: duration, metrics, the paper's figure
+    /**/experiment:           # the run itself: duration, metrics, the paper's figure
       ros__parameters: {...}
-    lathe_sim: ...  force_estimator: ...  force_controller: ...  pmc_bridge: ...
-    session_recorder: ...
+    /**/lathe_sim: ...  /**/force_estimator: ...  /**/force_controller: ...
+    /**/pmc_bridge: ...  /**/session_recorder: ...
 
-Keys under a node's own section must be parameters that node declares; a typo is an error, not a
-silently ignored line. Keys under ``/**`` reach every section that knows them.
+Node sections are written ``/**/<node>`` so that they reach the node in any namespace (a graph
+per machine, ``/lathe1/...``); ROS reads a bare ``force_estimator`` as ``/force_estimator``
+only. Keys under a node's own section must be parameters that node declares; a typo is an
+error, not a silently ignored line. Keys under ``/**`` reach every section that knows them.
 """
 
 from __future__ import annotations
