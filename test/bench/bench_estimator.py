@@ -23,7 +23,7 @@ FIG8 = Path(__file__).resolve().parents[2] / 'config' / 'experiments' / 'park199
 
 def open_loop(experiment, force_filter: str, noise_a: float) -> dict[str, float]:
     plant_settings = experiment.plant.replace(current_noise_a=noise_a)
-    plant = LathePlant(plant_settings, experiment.samples_per_block, 60.0)
+    plant = LathePlant(plant_settings, initial_override_pct=60.0)
     estimator = ForceEstimator(experiment.estimator.replace(force_filter=force_filter))
     truth, rate_truth, est, rate = [], [], [], []
     for _ in range(round(experiment.run.duration_s / experiment.run.control_period_s)):

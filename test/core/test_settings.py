@@ -114,7 +114,7 @@ def test_shared_parameters_reach_every_node_that_declares_them(tmp_path):
     e = load_experiment(path)
     assert e.plant.spindle_speed_rpm == e.controller.spindle_speed_rpm == 900.0
     assert e.run.control_period_s == e.bridge.control_period_s == 0.005
-    assert e.plant.seed == 4 and e.samples_per_block == 5
+    assert e.plant.seed == 4 and e.plant.samples_per_block == 5
 
 
 def test_set_assignments(tmp_path):

@@ -22,7 +22,8 @@ from turning_force_msgs.msg import ForceEstimate, ServoCurrents
 
 ROOT = Path(__file__).resolve().parents[2]
 VENV = Path(sys.prefix)
-EXECUTABLES = ['force_estimator']   # every node entry point the package declares
+EXECUTABLES = ['lathe_sim', 'force_estimator', 'force_controller', 'pmc_bridge',
+               'session_recorder', 'turning_force_graph']  # every node entry point
 
 
 @pytest.fixture(scope='module')

@@ -1,20 +1,27 @@
 """The ``turning-force`` command.
 
-- ``run EXPERIMENT.yaml [--set node.param=value ...] [--json]``: one experiment on the
-  simulator, metrics printed.
-- ``reproduce [--dir config/experiments] [--json]``: the papers' scenarios beside the papers'
-  numbers.
+- ``run EXPERIMENT.yaml [--out DIR] [--set node.param=value ...] [--json] [--core]``: the node
+  graph on the simulator in lock-step, recorded to DIR (default ``bags/<name>_<time>``), with a
+  figure beside it and the metrics printed. ``--core`` runs the ROS-free core loop instead
+  (no session).
+- ``replay BAG [--set node.param=value ...] [--json]``: estimator, controller and quantiser
+  re-run on the recorded currents; recorded and re-run side by side. ``--publish [--rate R]``
+  plays the bag's sensor topics into a live graph instead.
+- ``report BAG [--out FILE.png]``: the paper-style figure and the metrics.
+- ``reproduce [--dir config/experiments] [--json]``: the papers' scenarios beside their numbers.
 
-Errors in the user's input (a bad file, key or value) print one line naming it and exit 2.
+Errors in the user's input (a bad file, key, value or bag) print one line naming it and exit 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from turning_force.core.errors import TurningForceError
 from turning_force.core.experiment import load_experiment
@@ -25,20 +32,91 @@ from turning_force.papers import format_table, reproduce
 __all__ = ['main']
 
 
+def _print_metrics(title: str, metrics: dict[str, float]) -> None:
+    print(title)
+    for name in (*METRIC_NAMES, 'realtime_factor'):
+        if name in metrics:
+            print(f'  {name:26s} {metrics[name]:10.3f}')
+
+
 def _run(args: argparse.Namespace) -> int:
     experiment = load_experiment(args.experiment).with_sets(args.set)
-    result = simulate(experiment)
+    if args.core:
+        metrics = simulate(experiment).metrics
+        out: dict[str, Any] = {'experiment': experiment.run.name, 'metrics': metrics}
+    else:
+        from turning_force.session.reader import read_session, recorded_metrics
+        from turning_force.session.report import write_report
+        from turning_force.session.run import print_progress, run_lockstep
+
+        stamp = datetime.datetime.now().strftime('%Y%m%d_%H%M%S')
+        bag = Path(args.out or f'bags/{experiment.run.name}_{stamp}')
+        outcome = run_lockstep(experiment, bag, None if args.json else print_progress)
+        session = read_session(bag)
+        metrics = recorded_metrics(session)
+        metrics['realtime_factor'] = outcome.realtime_factor
+        figure = write_report(session, metrics, bag.with_suffix('.png'))
+        out = {'experiment': experiment.run.name, 'session': str(bag), 'figure': str(figure),
+               'executor': outcome.executor, 'metrics': metrics}
     if args.json:
-        print(json.dumps({'experiment': experiment.run.name, 'source': experiment.source,
-                          'metrics': result.metrics}))
+        print(json.dumps(out))
         return 0
     print(f'{experiment.run.name}: {experiment.run.description}')
     if experiment.run.paper_figure:
         paper = experiment.run.paper_steady_mean_abs_error_n
         print(f'  reproduces {experiment.run.paper_figure}'
               + (f' (paper: {paper:g} N average tracking error)' if paper else ''))
-    for name in (*METRIC_NAMES, 'realtime_factor'):
-        print(f'  {name:26s} {result.metrics[name]:10.3f}')
+    if 'session' in out:
+        print(f'  session: {out["session"]}\n  figure:  {out["figure"]}')
+    _print_metrics('metrics' + (' (core loop)' if args.core else ' (from the session)'),
+                   metrics)
+    return 0
+
+
+def _replay(args: argparse.Namespace) -> int:
+    from turning_force.session.reader import read_session
+
+    if args.publish:
+        from turning_force.session.play import play
+
+        play(Path(args.bag), args.rate)
+        return 0
+    from turning_force.session.replay import replay
+    from turning_force.session.run import print_progress
+
+    session = read_session(args.bag)
+    result = replay(session, args.set, None if args.json else print_progress)
+    comparison = {'max_force_difference_n': result.max_force_difference_n,
+                  'max_request_difference_pct': result.max_request_difference_pct,
+                  'differing_overrides': result.differing_overrides,
+                  'blocks': len(session.blocks)}
+    if args.json:
+        print(json.dumps({'session': str(session.path), 'sets': list(args.set),
+                          'metrics': result.rerun, 'recorded_metrics': result.recorded,
+                          'comparison': comparison}))
+        return 0
+    print(f'{session.path}: {len(session.blocks)} blocks replayed open loop'
+          + (f' with {", ".join(args.set)}' if args.set else ' unchanged'))
+    print(f'  {"metric (estimated force)":28s} {"recorded":>10s} {"re-run":>10s}')
+    for name in METRIC_NAMES:
+        print(f'  {name:28s} {result.recorded[name]:10.3f} {result.rerun[name]:10.3f}')
+    print(f'  force estimates differ by at most {result.max_force_difference_n:.3g} N; '
+          f'requests by {result.max_request_difference_pct:.3g} %; '
+          f'{result.differing_overrides} of {len(session.blocks)} overrides differ')
+    return 0
+
+
+def _report(args: argparse.Namespace) -> int:
+    from turning_force.session.reader import read_session, recorded_metrics
+    from turning_force.session.report import write_report
+
+    session = read_session(args.bag)
+    metrics = recorded_metrics(session)
+    out = Path(args.out) if args.out else Path(str(session.path).rstrip('/') + '.png')
+    if out.suffix != '.png':
+        raise TurningForceError(f'--out {out}: only .png is written')
+    write_report(session, metrics, out)
+    _print_metrics(f'{session.path}: figure {out}', metrics)
     return 0
 
 
@@ -58,16 +136,37 @@ def _reproduce(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='turning-force', description=__doc__.split('\n')[0])
     commands = parser.add_subparsers(dest='command', required=True)
-    run = commands.add_parser('run', help='run an experiment on the simulator')
+
+    def add_set(command: argparse.ArgumentParser) -> None:
+        command.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
+                             help='change one parameter (repeatable; the value is read as YAML)')
+
+    run = commands.add_parser('run', help='run an experiment through the graph, recorded')
     run.add_argument('experiment', help='ROS 2 parameters file (config/experiments/*.yaml)')
-    run.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
-                     help='change one parameter (repeatable; the value is read as YAML)')
+    run.add_argument('--out', help='session folder to create (default bags/<name>_<time>)')
+    add_set(run)
     run.add_argument('--json', action='store_true', help='print one JSON object')
+    run.add_argument('--core', action='store_true', help='the ROS-free core loop, no session')
     run.set_defaults(handler=_run)
-    rep = commands.add_parser('reproduce', help="the papers' scenarios beside their numbers")
-    rep.add_argument('--dir', default='config/experiments', help='experiment files')
+
+    rep = commands.add_parser('replay', help='re-run estimator and controller on a session')
+    rep.add_argument('bag', help='session folder (rosbag2, MCAP)')
+    add_set(rep)
     rep.add_argument('--json', action='store_true', help='print one JSON object')
-    rep.set_defaults(handler=_reproduce)
+    rep.add_argument('--publish', action='store_true',
+                     help='play the sensor topics into a live graph instead')
+    rep.add_argument('--rate', type=float, default=1.0, help='playback rate with --publish')
+    rep.set_defaults(handler=_replay)
+
+    report = commands.add_parser('report', help='the figure and metrics of a session')
+    report.add_argument('bag', help='session folder (rosbag2, MCAP)')
+    report.add_argument('--out', help='PNG to write (default: beside the session)')
+    report.set_defaults(handler=_report)
+
+    papers = commands.add_parser('reproduce', help="the papers' scenarios beside their numbers")
+    papers.add_argument('--dir', default='config/experiments', help='experiment files')
+    papers.add_argument('--json', action='store_true', help='print one JSON object')
+    papers.set_defaults(handler=_reproduce)
     return parser
 
 

@@ -28,11 +28,11 @@ from turning_force.core.control import ControllerSettings
 from turning_force.core.errors import ConfigError
 from turning_force.core.estimation import EstimatorSettings
 from turning_force.core.metrics import MetricSettings
-from turning_force.core.overrides import TABLES
 from turning_force.core.plant import PlantSettings
+from turning_force.core.pmc import BridgeSettings
 from turning_force.core.settings import Settings, setting
 
-__all__ = ['BridgeSettings', 'Experiment', 'RunSettings', 'load_experiment', 'parse_set']
+__all__ = ['Experiment', 'RunSettings', 'build_experiment', 'load_experiment', 'parse_set']
 
 SHARED = '/**'
 _T = TypeVar('_T')
@@ -59,17 +59,6 @@ class RunSettings(Settings):
 
 
 @dataclass(frozen=True)
-class BridgeSettings(Settings):
-    """The PMC bridge (``pmc_bridge`` parameters)."""
-
-    SECTION = 'pmc_bridge'
-
-    override_table: str = setting('fanuc_0t_4bit', 'Override table of the PMC',
-                                  choices=tuple(TABLES))
-    control_period_s: float = setting(0.01, 'Control period', 's', low=1e-4, high=1.0)
-
-
-@dataclass(frozen=True)
 class Experiment:
     """Every node's settings for one run, and the parameter file they came from."""
 
@@ -80,10 +69,6 @@ class Experiment:
     controller: ControllerSettings
     bridge: BridgeSettings
     sections: Mapping[str, Mapping[str, Any]]
-
-    @property
-    def samples_per_block(self) -> int:
-        return round(self.run.control_period_s * self.plant.sample_rate_hz)
 
     @property
     def metric_settings(self) -> MetricSettings:
@@ -104,7 +89,7 @@ class Experiment:
             if node == SHARED:
                 raise ConfigError(f'--set {text!r}: name a node, not {SHARED}')
             sections.setdefault(node, {})[param] = value
-        return _build(self.source, sections)
+        return build_experiment(self.source, sections)
 
 
 SETTINGS_OF: Mapping[str, type[Settings]] = {
@@ -153,12 +138,13 @@ def load_experiment(path: str | Path) -> Experiment:
             raise ConfigError(f'{path}: {node}: unknown node; known: {known}')
         sections.setdefault(name, {}).update(params)
     try:
-        return _build(str(path), sections)
+        return build_experiment(str(path), sections)
     except ConfigError as exc:
         raise ConfigError(f'{path}: {exc}') from exc
 
 
-def _build(source: str, sections: Mapping[str, Mapping[str, Any]]) -> Experiment:
+def build_experiment(source: str, sections: Mapping[str, Mapping[str, Any]]) -> Experiment:
+    """Validated settings from parameter sections (``/**`` shared, then per node)."""
     shared = dict(sections.get(SHARED, {}))
     unused = set(shared)
     built: dict[str, Settings] = {}
@@ -190,22 +176,17 @@ def _as(value: object, kind: type[_T]) -> _T:
 
 def _check_consistent(e: Experiment) -> None:
     period = e.run.control_period_s
-    per_block = period * e.plant.sample_rate_hz
-    if e.samples_per_block < 1 or abs(per_block - e.samples_per_block) > 1e-6 * per_block:
-        raise ConfigError(
-            f'lathe_sim.sample_rate_hz = {e.plant.sample_rate_hz!r}: control_period_s = '
-            f'{period!r} must span a whole number of samples (got {per_block:g})'
-        )
-    for section in (e.controller, e.bridge):
+    for section in (e.plant, e.controller, e.bridge):
         if section.control_period_s != period:
             raise ConfigError(
                 f'{section.SECTION}.control_period_s = {section.control_period_s!r}: differs '
                 f'from experiment.control_period_s = {period!r}; set it once under {SHARED}'
             )
-    if e.controller.override_table != e.bridge.override_table:
-        raise ConfigError(
-            f'force_controller.override_table = {e.controller.override_table!r}: differs from '
-            f'pmc_bridge.override_table = {e.bridge.override_table!r}; set it once under '
-            f'{SHARED}'
-        )
+    for section in (e.controller, e.plant):
+        if section.override_table != e.bridge.override_table:
+            raise ConfigError(
+                f'{section.SECTION}.override_table = {section.override_table!r}: differs from '
+                f'pmc_bridge.override_table = {e.bridge.override_table!r}; set it once under '
+                f'{SHARED}'
+            )
 

@@ -15,6 +15,7 @@ Machines with other wiring describe theirs in ``config/machines/`` and load it w
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -93,7 +94,14 @@ class OverrideTable:
         """
         if not math.isfinite(requested_pct):
             raise ValueError(f'{self.name}: requested override {requested_pct!r} is not finite')
-        return float(self.quantise_array(np.array([requested_pct]))[0])
+        levels = self.levels_pct
+        pct = min(max(requested_pct, levels[0]), levels[-1])
+        if self.continuous:
+            return pct
+        # Once per control period on the hot path: bisect, not numpy.
+        upper = min(max(bisect.bisect_left(levels, pct), 1), len(levels) - 1)
+        lo, hi = levels[upper - 1], levels[upper]
+        return hi if hi - pct < pct - lo else lo
 
     def quantise_array(self, requested_pct: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Vectorised :meth:`quantise` (for replays); NaN stays NaN."""

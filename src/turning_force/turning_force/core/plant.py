@@ -27,6 +27,7 @@ from turning_force.core.drive import (
     inverse_park_clarke,
     rotor_angle_rad,
 )
+from turning_force.core.overrides import TABLES
 from turning_force.core.settings import Settings, setting
 
 __all__ = ['DepthProfile', 'LathePlant', 'PlantBlock', 'PlantSettings']
@@ -41,6 +42,10 @@ class PlantSettings(Settings):
     SECTION = 'lathe_sim'
 
     seed: int = setting(1, 'Seed of the sensor and process noise', low=0)
+    control_period_s: float = setting(0.01, 'Control period: one block of samples', 's',
+                                      low=1e-4, high=1.0)
+    override_table: str = setting('fanuc_0t_4bit', 'Override table the simulated PMC reads the '
+                                  'bits with', choices=tuple(TABLES))
     sample_rate_hz: float = setting(1000.0, 'DAQ sample rate of the phase currents', 'Hz',
                                     low=10.0, high=100000.0)
     spindle_speed_rpm: float = setting(600.0, 'Spindle speed N', 'rpm', low=0.0, low_open=True,
@@ -104,6 +109,15 @@ class PlantSettings(Settings):
         if self.friction_max_feed_mm_min <= self.friction_min_feed_mm_min:
             self.fail('friction_max_feed_mm_min', 'must exceed friction_min_feed_mm_min '
                       f'({self.friction_min_feed_mm_min})')
+        per_block = self.control_period_s * self.sample_rate_hz
+        whole = self.samples_per_block
+        if whole < 1 or abs(per_block - whole) > 1e-6 * per_block:
+            self.fail('sample_rate_hz', f'control_period_s = {self.control_period_s!r} must span '
+                                        f'a whole number of samples (got {per_block:g})')
+
+    @property
+    def samples_per_block(self) -> int:
+        return round(self.control_period_s * self.sample_rate_hz)
 
     @property
     def programmed_feed_rate_mm_min(self) -> float:
@@ -193,10 +207,10 @@ class LathePlant:
     Deterministic for given settings and seed.
     """
 
-    def __init__(self, settings: PlantSettings, samples_per_block: int,
+    def __init__(self, settings: PlantSettings, samples_per_block: int | None = None,
                  initial_override_pct: float = 100.0) -> None:
         self.settings = settings
-        self.samples_per_block = samples_per_block
+        self.samples_per_block = samples_per_block or settings.samples_per_block
         self._dt = 1.0 / settings.sample_rate_hz
         self._profile = settings.depth_profile
         self._friction = settings.friction
@@ -214,6 +228,11 @@ class LathePlant:
         self._pending_mm_min = np.full(delay, v0)
         self._position_mm = 0.0
         self._k = 0
+
+    @property
+    def position_mm(self) -> float:
+        """Feed-axis position at the end of the last block."""
+        return self._position_mm
 
     @property
     def time_s(self) -> float:

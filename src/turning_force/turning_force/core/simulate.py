@@ -52,7 +52,7 @@ def simulate(experiment: Experiment) -> SimulationResult:
     table = get_table(experiment.bridge.override_table)
     controller = make_controller(experiment.controller)
     applied = table.quantise(experiment.controller.initial_override_pct)
-    plant = LathePlant(experiment.plant, experiment.samples_per_block, applied)
+    plant = LathePlant(experiment.plant, initial_override_pct=applied)
     estimator = ForceEstimator(experiment.estimator)
     steps = round(experiment.run.duration_s / experiment.run.control_period_s)
     rows = np.empty((steps, len(TRACE_NAMES)))

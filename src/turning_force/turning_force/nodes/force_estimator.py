@@ -14,14 +14,13 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from turning_force_msgs.msg import ForceEstimate, ServoCurrents
 
 from turning_force.core.estimation import EstimateStatus, EstimatorSettings, ForceEstimator
 from turning_force.nodes.convert import estimate_to_msg, servo_currents_to_block
 from turning_force.nodes.parameters import SettingsParameters
+from turning_force.nodes.spin import run_nodes
 
 __all__ = ['ForceEstimatorNode', 'main']
 
@@ -50,16 +49,7 @@ class ForceEstimatorNode(Node):
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    rclpy.init(args=list(args) if args is not None else None)
-    node = ForceEstimatorNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_nodes(lambda: [ForceEstimatorNode()], args)
 
 
 if __name__ == '__main__':

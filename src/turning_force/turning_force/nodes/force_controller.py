@@ -1,0 +1,85 @@
+"""``force_controller``: the force control law, once per force estimate.
+
+Subscribes ``force/estimate`` (turning_force_msgs/ForceEstimate) and ``force/reference``
+(std_msgs/Float64 [N], transient-local, so a late joiner gets the last one); publishes
+``control/feed_command`` (turning_force_msgs/FeedCommand), stamped as the estimate it answers.
+The law is :mod:`turning_force.core.control`, chosen by ``controller``; parameters:
+:class:`turning_force.core.control.ControllerSettings`. Reference and gains may change while
+cutting and take effect at the next control period. An estimate that is not OK (invalid input,
+stale) is not acted on: no command goes out, and the PMC bridge's watchdog takes over.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64
+from turning_force_msgs.msg import FeedCommand, ForceEstimate
+
+from turning_force.core.control import ControllerSettings, make_controller
+from turning_force.nodes.diagnostics import Diagnostics
+from turning_force.nodes.parameters import SettingsParameters
+from turning_force.nodes.spin import run_nodes
+
+__all__ = ['REFERENCE_QOS', 'ForceControllerNode', 'main']
+
+REFERENCE_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                           reliability=ReliabilityPolicy.RELIABLE)
+ACTIONABLE = (ForceEstimate.STATUS_OK, ForceEstimate.STATUS_SATURATED)
+
+
+class ForceControllerNode(Node):
+    """Force estimate and reference in, feed command out."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('force_controller', **kwargs)
+        self.parameters = SettingsParameters(self, ControllerSettings, self._retune)
+        settings = self.parameters.current
+        self._controller = make_controller(settings)
+        self.diagnostics = Diagnostics(self)
+        self.diagnostics.watch('force/estimate', stale_after_s=5 * settings.control_period_s)
+        self.diagnostics.set_value('controller', settings.controller)
+        self._publisher = self.create_publisher(FeedCommand, 'control/feed_command', 10)
+        self.create_subscription(ForceEstimate, 'force/estimate', self._on_estimate, 10)
+        self.create_subscription(Float64, 'force/reference', self._on_reference, REFERENCE_QOS)
+
+    def _retune(self, settings: ControllerSettings) -> None:
+        self._controller.retune(settings)
+
+    def _on_reference(self, msg: Float64) -> None:
+        self.diagnostics.received('force/reference')
+        value = msg.data
+        result = self.set_parameters([Parameter('reference_force_n', value=float(value))])[0]
+        if not result.successful:
+            text = f'force/reference: {value!r} N rejected: {result.reason}'
+            self.get_logger().error(text)
+            self.diagnostics.error(text)
+
+    def _on_estimate(self, msg: ForceEstimate) -> None:
+        self.diagnostics.received('force/estimate')
+        if msg.status not in ACTIONABLE or not math.isfinite(msg.force_n):
+            self.diagnostics.warn(f'force/estimate status {msg.status}: {msg.detail}')
+            return
+        out = self._controller.update(msg.force_n, msg.force_rate_n_s)
+        command = FeedCommand(
+            override_pct=out.override_pct, tracking_error_n=out.error_n,
+            sliding_variable=out.sliding_variable,
+            reference_force_n=self._controller.settings.reference_force_n,
+            controller=self._controller.name)
+        command.header = msg.header
+        self._publisher.publish(command)
+        self.diagnostics.published('control/feed_command')
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    return run_nodes(lambda: [ForceControllerNode()], args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

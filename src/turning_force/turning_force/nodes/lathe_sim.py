@@ -1,0 +1,132 @@
+"""``lathe_sim``: the simulated lathe, standing in for the machine.
+
+Subscribes ``pmc/feed_override`` (turning_force_msgs/FeedOverride): the PMC bits are decoded with
+the override table, as the CNC would read them. Publishes, once per control period,
+``servo/currents`` (a block of DAQ samples), ``servo/joint_state`` (sensor_msgs/JointState of
+the feed axis ``z``: position [m], velocity [m/s], effort = true cutting force [N]) and
+``sim/cutting_state`` (ground truth); with ``publish_clock`` it owns ``/clock`` and advances it
+one control period per step (lock-step simulation). Parameters:
+:class:`turning_force.core.plant.PlantSettings`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from rclpy.node import Node
+from rclpy.task import Future
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from turning_force_msgs.msg import CuttingState, FeedOverride, ServoCurrents
+
+from turning_force.core.overrides import get_table
+from turning_force.core.plant import LathePlant, PlantBlock, PlantSettings
+from turning_force.nodes.convert import block_to_servo_currents, seconds_to_stamp
+from turning_force.nodes.diagnostics import Diagnostics
+from turning_force.nodes.parameters import SettingsParameters
+from turning_force.nodes.spin import run_nodes
+
+__all__ = ['LatheSimNode', 'main']
+
+
+class LatheSimNode(Node):
+    """The plant on the graph. ``step()`` advances it one control period.
+
+    In real time a wall timer calls ``step()``; in lock-step (``lockstep=True``) the runner
+    does, after the graph has answered the previous block.
+    """
+
+    def __init__(self, *, lockstep: bool = False, **kwargs: Any) -> None:
+        super().__init__('lathe_sim', **kwargs)
+        self.declare_parameter('publish_clock', False)
+        self._publish_clock = bool(self.get_parameter('publish_clock').value)
+        self.parameters = SettingsParameters(self, PlantSettings)
+        settings = self.parameters.current
+        self._table = get_table(settings.override_table)
+        self._applied_pct = 100.0  # the PMC starts at the programmed feed
+        self._plant = LathePlant(settings, initial_override_pct=self._applied_pct)
+        # Plant time 0 is this node's clock at start (0 in lock-step sim time).
+        self._t0_s = 0.0 if lockstep else self.get_clock().now().nanoseconds * 1e-9
+        self.last_override_stamp_ns = -1
+        self._awaited: tuple[int, Future[int]] | None = None
+        self.diagnostics = Diagnostics(self)
+        self.diagnostics.watch('pmc/feed_override', stale_after_s=5 * settings.control_period_s)
+        self._clock_publisher = (self.create_publisher(Clock, '/clock', 10)
+                                 if self._publish_clock else None)
+        self._currents = self.create_publisher(ServoCurrents, 'servo/currents', 10)
+        self._joint = self.create_publisher(JointState, 'servo/joint_state', 10)
+        self._truth = self.create_publisher(CuttingState, 'sim/cutting_state', 10)
+        self.create_subscription(FeedOverride, 'pmc/feed_override', self._on_override, 10)
+        if not lockstep:
+            self.create_timer(settings.control_period_s, self._tick)
+
+    @property
+    def applied_pct(self) -> float:
+        return self._applied_pct
+
+    def _on_override(self, msg: FeedOverride) -> None:
+        self.diagnostics.received('pmc/feed_override')
+        try:
+            pct = (msg.applied_pct if self._table.continuous
+                   else self._table.decode(tuple(msg.pmc_bits)))
+        except ValueError as exc:
+            self.diagnostics.error(f'pmc/feed_override: {exc}')
+            return
+        self._applied_pct = pct
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self.last_override_stamp_ns = stamp_ns
+        if self._awaited is not None and self._awaited[0] == stamp_ns:
+            self._awaited[1].set_result(stamp_ns)
+            self._awaited = None
+
+    def answer(self, block: PlantBlock) -> Future[int]:
+        """A future done when the override answering ``block`` (stamped with its last sample's
+        time, as the estimate, command and override that answer it are) has arrived."""
+        currents = block.currents
+        last_s = self._t0_s + currents.t0_s + (len(currents) - 1) * currents.sample_period_s
+        future: Future[int] = Future()
+        self._awaited = (round(last_s * 1e9), future)
+        return future
+
+    def _tick(self) -> None:
+        self.step()
+
+    def step(self) -> PlantBlock:
+        """Advance one control period at the applied override and publish what it gives."""
+        block = self._plant.step(self._applied_pct)
+        currents = block.currents
+        t_end = self._t0_s + currents.t0_s + len(currents) * currents.sample_period_s
+        if self._clock_publisher is not None:
+            self._clock_publisher.publish(Clock(clock=seconds_to_stamp(t_end)))
+        frame = 'z_axis'
+        shifted = dataclasses.replace(currents, t0_s=self._t0_s + currents.t0_s)
+        self._currents.publish(block_to_servo_currents(shifted, frame))
+        last = seconds_to_stamp(t_end - currents.sample_period_s)
+        joint = JointState(name=['z'], position=[self._plant.position_mm / 1000.0],
+                           velocity=[float(currents.feed_rate_mm_min[-1]) / 60000.0],
+                           effort=[float(block.force_n[-1])])
+        joint.header.stamp, joint.header.frame_id = last, frame
+        self._joint.publish(joint)
+        s = self._plant.settings
+        truth = CuttingState(
+            force_n=float(block.force_n[-1]), depth_of_cut_mm=float(block.depth_mm[-1]),
+            spindle_speed_rpm=s.spindle_speed_rpm, feed_mm_rev=float(block.feed_mm_rev[-1]),
+            feed_rate_mm_min=float(currents.feed_rate_mm_min[-1]),
+            specific_cutting_force_n_mm2=s.specific_cutting_force_n_mm2,
+            override_pct=block.override_pct)
+        truth.header.stamp, truth.header.frame_id = last, frame
+        self._truth.publish(truth)
+        for topic in ('servo/currents', 'servo/joint_state', 'sim/cutting_state'):
+            self.diagnostics.published(topic)
+        return block
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    return run_nodes(lambda: [LatheSimNode()], args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

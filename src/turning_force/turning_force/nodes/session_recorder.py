@@ -1,0 +1,118 @@
+"""``session_recorder``: every topic of the graph into a rosbag2 MCAP session.
+
+Subscribes, without deserialising, to every topic of the graph (``servo/currents``,
+``servo/joint_state``, ``sim/cutting_state``, ``force/estimate``, ``force/reference``,
+``control/feed_command``, ``pmc/feed_override``, ``/diagnostics``) and writes them to
+``output_dir`` as they come, stamped with this node's clock (sim time in lock-step). Embeds the
+experiment file (``experiment_file``), the software versions, and the resolved parameters its
+owner passes (:meth:`SessionRecorderNode.add_custom_data`). A killed recorder loses at most
+``flush_period_s`` of data.
+"""
+
+from __future__ import annotations
+
+import datetime
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+from turning_force_msgs.msg import (
+    CuttingState,
+    FeedCommand,
+    FeedOverride,
+    ForceEstimate,
+    ServoCurrents,
+)
+
+from turning_force.nodes.diagnostics import Diagnostics
+from turning_force.nodes.force_controller import REFERENCE_QOS
+from turning_force.nodes.spin import run_nodes
+from turning_force.session.bag import (
+    CUSTOM_EXPERIMENT,
+    CUSTOM_VERSIONS,
+    SessionWriter,
+    dumps,
+    software_versions,
+)
+
+__all__ = ['GRAPH_TOPICS', 'SessionRecorderNode', 'main']
+
+GRAPH_TOPICS: dict[str, type] = {
+    'servo/currents': ServoCurrents,
+    'servo/joint_state': JointState,
+    'sim/cutting_state': CuttingState,
+    'force/estimate': ForceEstimate,
+    'force/reference': Float64,
+    'control/feed_command': FeedCommand,
+    'pmc/feed_override': FeedOverride,
+    '/diagnostics': DiagnosticArray,
+}
+
+
+def msgtype(cls: type) -> str:
+    """``turning_force_msgs.msg.ServoCurrents`` -> ``turning_force_msgs/msg/ServoCurrents``."""
+    return f'{cls.__module__.split(".")[0]}/msg/{cls.__name__}'
+
+
+class SessionRecorderNode(Node):
+    """The graph's topics to one rosbag2 MCAP folder."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('session_recorder', **kwargs)
+        stamp = datetime.datetime.now().strftime('%Y%m%d_%H%M%S')
+        self.declare_parameter('output_dir', f'bags/session_{stamp}', ParameterDescriptor(
+            description='rosbag2 folder to create (must not exist)', read_only=True))
+        self.declare_parameter('experiment_file', '', ParameterDescriptor(
+            description='Experiment parameters file to embed in the session', read_only=True))
+        self.declare_parameter('flush_period_s', 1.0, ParameterDescriptor(
+            description='Longest wall time between writes to the disk [s]', read_only=True))
+        path = Path(self.get_parameter('output_dir').value)
+        self.writer = SessionWriter(path, float(self.get_parameter('flush_period_s').value))
+        self.writer.set_custom_data(CUSTOM_VERSIONS, dumps(software_versions()))
+        experiment = str(self.get_parameter('experiment_file').value)
+        if experiment:
+            self.writer.set_custom_data(CUSTOM_EXPERIMENT, Path(experiment).read_text())
+        self.diagnostics = Diagnostics(self)
+        self._closed = False
+        for topic, cls in GRAPH_TOPICS.items():
+            name = self.resolve_topic_name(topic)
+            self.writer.add_topic(name, msgtype(cls))
+            qos = REFERENCE_QOS if topic == 'force/reference' else QoSProfile(depth=100)
+            self.create_subscription(cls, topic, self._callback(name), qos, raw=True)
+        self.get_logger().info(f'recording to {path}')
+
+    def _callback(self, name: str) -> Any:
+        def record(data: bytes) -> None:
+            if not self._closed:
+                self.writer.write(name, self.get_clock().now().nanoseconds, data)
+                self.diagnostics.received(name)
+        return record
+
+    def add_custom_data(self, key: str, value: str) -> None:
+        self.writer.set_custom_data(key, value)
+
+    def close(self) -> None:
+        """Finish the session (summary, index, metadata.yaml). Idempotent."""
+        if not self._closed:
+            self._closed = True
+            self.writer.close()
+            self.get_logger().info(f'session closed: {self.writer.path}')
+
+    def destroy_node(self) -> None:
+        self.close()
+        super().destroy_node()
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    return run_nodes(lambda: [SessionRecorderNode()], args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

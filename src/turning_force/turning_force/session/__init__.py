@@ -1,0 +1,1 @@
+"""Sessions: recording the graph to rosbag2 MCAP folders, reading them back, replaying them."""

@@ -1,0 +1,171 @@
+"""Reading a recorded session back: the signals as arrays, the experiment it ran.
+
+Topics are found by their relative name, whatever namespace the graph ran in
+(``/lathe1/servo/currents`` is ``servo/currents``). Signals are aligned per control block: the
+``k``-th block of currents, the estimate, command and override that answered it (matched by
+header stamp), and the simulator's truth for it.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import yaml
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.rosbag2 import ReaderError
+
+from turning_force.core.drive import CurrentBlock
+from turning_force.core.errors import ConfigError
+from turning_force.core.experiment import Experiment, build_experiment
+from turning_force.core.metrics import compute_metrics
+from turning_force.session.bag import (
+    CUSTOM_PARAMETERS,
+    CUSTOM_VERSIONS,
+    BagError,
+    typestore,
+)
+
+__all__ = ['Session', 'read_session', 'recorded_metrics']
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def _ns(stamp: Any) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+@dataclass
+class Session:
+    """A recorded session, per control block.
+
+    ``t_s`` is the end of each block (as the core loop's traces); ``answer_stamps_ns`` the stamp
+    of its last sample, which the estimate, command and override that answer it carry.
+    Arrays hold NaN where a block had no answer (the graph did not act on it).
+    """
+
+    path: Path
+    custom_data: dict[str, str]
+    experiment: Experiment | None
+    blocks: list[CurrentBlock]
+    t_s: FloatArray
+    answer_stamps_ns: npt.NDArray[np.int64]
+    signals: dict[str, FloatArray] = field(default_factory=dict)
+    has_truth: bool = False
+
+    @property
+    def versions(self) -> dict[str, str]:
+        return dict(json.loads(self.custom_data.get(CUSTOM_VERSIONS, '{}')))
+
+
+def _topic(name: str) -> str:
+    """The relative topic name: strip any namespace in front of the graph's names."""
+    for relative in ('servo/currents', 'servo/joint_state', 'sim/cutting_state',
+                     'force/estimate', 'force/reference', 'control/feed_command',
+                     'pmc/feed_override'):
+        if name.endswith('/' + relative) or name == relative:
+            return relative
+    return name
+
+
+def _messages(path: Path) -> Iterator[tuple[str, Any]]:
+    try:
+        with AnyReader([path], default_typestore=typestore()) as reader:
+            for connection, _, raw in reader.messages():
+                topic = _topic(connection.topic)
+                if topic == '/diagnostics':
+                    continue
+                yield topic, reader.deserialize(raw, connection.msgtype)
+    except (AnyReaderError, ReaderError, OSError) as exc:
+        raise BagError(f'{path}: cannot read the session: {exc}') from exc
+
+
+def _custom_data(path: Path) -> dict[str, str]:
+    """rosbag2's ``custom_data`` from metadata.yaml (rosbags reads it but does not expose it)."""
+    try:
+        info = yaml.safe_load((path / 'metadata.yaml').read_text())
+        custom = info['rosbag2_bagfile_information'].get('custom_data') or {}
+    except (OSError, yaml.YAMLError, KeyError, TypeError, AttributeError) as exc:
+        raise BagError(f'{path / "metadata.yaml"}: not rosbag2 metadata: {exc}') from exc
+    return {str(k): str(v) for k, v in custom.items()}
+
+
+def _experiment(path: Path, custom: dict[str, str]) -> Experiment | None:
+    try:
+        if CUSTOM_PARAMETERS in custom:
+            return build_experiment(f'{path} (recorded parameters)',
+                                    json.loads(custom[CUSTOM_PARAMETERS]))
+    except (ValueError, ConfigError) as exc:
+        raise BagError(f'{path}: the recorded parameters are not a valid experiment: {exc}') \
+            from exc
+    return None
+
+
+def read_session(path: str | Path) -> Session:
+    """Read a session folder written by ``session_recorder``."""
+    path = Path(path)
+    if not (path / 'metadata.yaml').is_file():
+        raise BagError(f'{path}: not a rosbag2 folder (no metadata.yaml); an MCAP file of a '
+                       'killed recording can be read with the mcap reader')
+    custom = _custom_data(path)
+    blocks: list[CurrentBlock] = []
+    answers: dict[str, dict[int, Any]] = {'force/estimate': {}, 'control/feed_command': {},
+                                          'pmc/feed_override': {}, 'sim/cutting_state': {}}
+    for topic, msg in _messages(path):
+        if topic == 'servo/currents':
+            blocks.append(CurrentBlock(
+                _ns(msg.header.stamp) * 1e-9, float(msg.sample_period_s),
+                np.asarray(msg.phase_u_a, dtype=float), np.asarray(msg.phase_v_a, dtype=float),
+                np.asarray(msg.rotor_angle_rad, dtype=float),
+                np.asarray(msg.feed_rate_mm_min, dtype=float)))
+        elif topic in answers:
+            answers[topic].setdefault(_ns(msg.header.stamp), msg)
+    if not blocks:
+        raise BagError(f'{path}: no servo/currents in the session')
+    blocks.sort(key=lambda b: b.t0_s)
+    stamps = np.array([round((b.t0_s + (len(b) - 1) * b.sample_period_s) * 1e9)
+                       for b in blocks], dtype=np.int64)
+    t_end = np.array([b.t0_s + len(b) * b.sample_period_s for b in blocks])
+
+    def column(topic: str, attribute: str) -> FloatArray:
+        found = answers[topic]
+        return np.array([float(getattr(found[s], attribute)) if s in found else np.nan
+                         for s in stamps.tolist()])
+
+    signals = {
+        'estimated_force_n': column('force/estimate', 'force_n'),
+        'estimated_force_rate_n_s': column('force/estimate', 'force_rate_n_s'),
+        'estimate_status': column('force/estimate', 'status'),
+        'requested_override_pct': column('control/feed_command', 'override_pct'),
+        'reference_n': column('control/feed_command', 'reference_force_n'),
+        'sliding_variable': column('control/feed_command', 'sliding_variable'),
+        'answered_override_pct': column('pmc/feed_override', 'applied_pct'),
+        'override_reason': column('pmc/feed_override', 'reason'),
+        'force_n': column('sim/cutting_state', 'force_n'),
+        'depth_mm': column('sim/cutting_state', 'depth_of_cut_mm'),
+        'feed_mm_rev': column('sim/cutting_state', 'feed_mm_rev'),
+        'applied_override_pct': column('sim/cutting_state', 'override_pct'),
+    }
+    return Session(path, custom, _experiment(path, custom), blocks, t_end, stamps, signals,
+                   has_truth=bool(answers['sim/cutting_state']))
+
+
+def recorded_metrics(session: Session) -> dict[str, float]:
+    """The DESIGN.md metrics of a simulated session, from its ground truth."""
+    if not session.has_truth or session.experiment is None:
+        raise BagError(f'{session.path}: no simulator truth or experiment: the true-force '
+                       'metrics need both')
+    s = session.signals
+    reference = s['reference_n'].copy()
+    missing = np.isnan(reference)
+    reference[missing] = session.experiment.controller.reference_force_n
+    return compute_metrics(
+        session.t_s, s['force_n'], reference, s['depth_mm'], s['applied_override_pct'],
+        session.experiment.plant.depth_profile.change_times_s(),
+        session.experiment.metric_settings)
+

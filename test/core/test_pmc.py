@@ -1,0 +1,90 @@
+"""The override gate: the machine stays safe first."""
+
+import math
+
+import pytest
+
+from turning_force.core.errors import ConfigError
+from turning_force.core.pmc import BridgeSettings, OverrideGate, Reason
+
+
+def armed_gate(**changes):
+    gate = OverrideGate(BridgeSettings(armed=True, **changes), t_s=0.0)
+    gate.on_command(113.0, 0.0)
+    return gate
+
+
+def test_starts_disarmed_at_the_programmed_feed():
+    gate = OverrideGate(BridgeSettings())
+    gate.on_command(40.0, 0.0)
+    d = gate.decide(0.0)
+    assert (d.applied_pct, d.reason, d.armed) == (100.0, Reason.DISARMED, False)
+    assert d.requested_pct == 40.0
+
+
+def test_armed_writes_the_quantised_request_and_its_bits():
+    d = armed_gate().decide(0.005)
+    assert (d.applied_pct, d.reason) == (110.0, Reason.NORMAL)
+    assert d.code == 11 and d.bits == (False, False, True, False)  # ~1011, active low
+
+
+def test_stale_command_goes_to_the_safe_override():
+    gate = armed_gate(safe_override_pct=20.0, watchdog_period_s=0.05)
+    assert gate.decide(0.05).reason == Reason.NORMAL       # on the limit: not yet stale
+    d = gate.decide(0.0501)
+    assert (d.applied_pct, d.reason) == (20.0, Reason.WATCHDOG)
+    assert '0.050 s old' in d.detail
+    gate.on_command(113.0, 0.06)
+    assert gate.decide(0.06).reason == Reason.NORMAL        # a fresh command resumes
+
+
+def test_after_arming_the_first_command_has_one_watchdog_period():
+    gate = OverrideGate(BridgeSettings(armed=True, watchdog_period_s=0.05), t_s=1.0)
+    waiting = gate.decide(1.04)
+    assert (waiting.applied_pct, waiting.reason) == (100.0, Reason.WATCHDOG)
+    assert waiting.detail == 'armed, waiting for the first feed command'
+    late = gate.decide(1.06)
+    assert (late.applied_pct, late.reason) == (0.0, Reason.WATCHDOG)
+    assert 'no feed command in 0.060 s since arming' in late.detail
+
+
+@pytest.mark.parametrize('bad', [math.nan, math.inf, -math.inf])
+def test_non_finite_command_goes_to_the_safe_override(bad):
+    gate = armed_gate(safe_override_pct=30.0)
+    gate.on_command(bad, 0.01)
+    d = gate.decide(0.01)
+    assert (d.applied_pct, d.reason) == (30.0, Reason.INVALID_COMMAND)
+    assert 'not finite' in d.detail
+
+
+def test_overload_holds_the_feed_until_re_armed():
+    gate = armed_gate(overload_force_n=1500.0)
+    gate.on_force(1499.0)
+    assert gate.decide(0.0).reason == Reason.NORMAL
+    gate.on_force(1600.0)
+    gate.on_force(400.0)        # the force falling back does not release the hold
+    d = gate.decide(0.0)
+    assert (d.applied_pct, d.reason) == (0.0, Reason.OVERLOAD_HOLD)
+    assert '1600 N above overload_force_n 1500 N' in d.detail
+    gate.disarm()
+    assert gate.decide(0.0).reason == Reason.OVERLOAD_HOLD  # disarming is no way out
+    gate.arm(0.0)
+    gate.on_command(113.0, 0.0)
+    assert gate.decide(0.0).reason == Reason.NORMAL
+
+
+def test_arming_through_settings_clears_the_hold():
+    gate = armed_gate()
+    gate.on_force(5000.0)
+    gate.reconfigure(gate.settings.replace(armed=False), 0.0)
+    gate.reconfigure(gate.settings.replace(armed=True), 0.0)
+    gate.on_command(113.0, 0.0)
+    assert gate.decide(0.0).reason == Reason.NORMAL
+
+
+def test_bad_bridge_settings():
+    with pytest.raises(ConfigError, match=r'pmc_bridge.safe_override_pct = 200.0: outside the '
+                                          r'fanuc_0t_4bit range'):
+        BridgeSettings(safe_override_pct=200.0)
+    with pytest.raises(ConfigError, match=r'pmc_bridge.watchdog_period_s = 0.005: shorter'):
+        BridgeSettings(watchdog_period_s=0.005)
