@@ -70,6 +70,8 @@ class PmcBridgeNode(Node):
 
     def _set_armed(self, armed: bool, response: Trigger.Response) -> Trigger.Response:
         result = self.set_parameters([Parameter('armed', value=armed)])[0]
+        if armed and result.successful:
+            self.gate.arm(self._now_s())  # re-arming an armed bridge clears an overload hold
         response.success = result.successful
         response.message = 'armed' if armed else 'disarmed'
         if not result.successful:

@@ -1,18 +1,21 @@
-"""In-process ROS fixtures: an own Context per test, spun with deadlines, torn down in order."""
+"""In-process ROS fixtures for test/nodes, test/session and test/cli: an own Context per test,
+spun with deadlines, torn down in order. rclpy is imported inside the fixtures, so that
+test/core, which never touches ROS, does not load it."""
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import pytest
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 
 
 @pytest.fixture
-def context() -> Iterator[Context]:
+def context() -> Iterator[Any]:
+    import rclpy
+    from rclpy.context import Context
+
     ctx = Context()
     rclpy.init(context=ctx)
     try:
@@ -22,7 +25,9 @@ def context() -> Iterator[Context]:
 
 
 @pytest.fixture
-def executor(context: Context) -> Iterator[SingleThreadedExecutor]:
+def executor(context: Any) -> Iterator[Any]:
+    from rclpy.executors import SingleThreadedExecutor
+
     ex = SingleThreadedExecutor(context=context)
     try:
         yield ex
@@ -34,7 +39,7 @@ def executor(context: Context) -> Iterator[SingleThreadedExecutor]:
 
 
 @pytest.fixture
-def spin_until(executor: SingleThreadedExecutor) -> Callable[..., bool]:
+def spin_until(executor: Any) -> Callable[..., bool]:
     """``spin_until(condition, timeout_s=10)``: spin until ``condition()`` holds or the deadline
     passes; returns whether it held. No sleeps: the executor waits on its own events."""
 

@@ -1,0 +1,301 @@
+"""Each node in-process: its topics, its parameters (a bad value rejected with its reason), and
+the safety behaviours. Own Context per test, spun with deadlines, no sleeps."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
+from turning_force_msgs.msg import (
+    CuttingState,
+    FeedCommand,
+    FeedOverride,
+    ForceEstimate,
+    ServoCurrents,
+)
+
+from turning_force.nodes.force_controller import REFERENCE_QOS, ForceControllerNode
+from turning_force.nodes.force_estimator import ForceEstimatorNode
+from turning_force.nodes.lathe_sim import LatheSimNode
+from turning_force.nodes.pmc_bridge import PmcBridgeNode
+
+
+class Probe:
+    """A test node: publishers to and recorders of a node's topics."""
+
+    def __init__(self, context, executor) -> None:
+        self.node = Node('probe', context=context)
+        executor.add_node(self.node)
+        self.received: dict[str, list] = {}
+
+    def listen(self, cls, topic, qos=10) -> list:
+        box = self.received.setdefault(topic, [])
+        self.node.create_subscription(cls, topic, box.append, qos)
+        return box
+
+    def publisher(self, cls, topic, qos=10):
+        return self.node.create_publisher(cls, topic, qos)
+
+
+def until_heard(spin_until, publisher, message, box, count=1, timeout_s=10.0):
+    """Publish ``message`` until ``box`` holds ``count`` items (discovery may drop the first)."""
+    def heard() -> bool:
+        if len(box) < count:
+            publisher.publish(message)
+        return len(box) >= count
+    return spin_until(heard, timeout_s)
+
+
+def block(t0_s: float, current_v_a: float = 1.0, n: int = 10, nan: bool = False):
+    msg = ServoCurrents(sample_period_s=1e-3, phase_u_a=[0.0] * n,
+                        phase_v_a=[current_v_a] * n, rotor_angle_rad=[0.0] * n,
+                        feed_rate_mm_min=[120.0] * n)
+    if nan:
+        msg.phase_u_a[3] = math.nan
+    ns = round(t0_s * 1e9)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+    return msg
+
+
+def set_parameter(node, name, value):
+    return node.set_parameters([Parameter(name, value=value)])[0]
+
+
+# --- lathe_sim -------------------------------------------------------------------------------
+
+def test_lathe_sim_publishes_a_block_and_reads_the_pmc_bits(context, executor, spin_until):
+    sim = LatheSimNode(lockstep=True, context=context)
+    executor.add_node(sim)
+    probe = Probe(context, executor)
+    currents = probe.listen(ServoCurrents, 'servo/currents')
+    truth = probe.listen(CuttingState, 'sim/cutting_state')
+    overrides = probe.publisher(FeedOverride, 'pmc/feed_override')
+    assert spin_until(lambda: bool(sim.step()) and bool(currents) and bool(truth))
+    assert len(currents[0].phase_u_a) == 10 and currents[0].sample_period_s == 1e-3
+    assert truth[0].override_pct == 100.0
+    # 50 % on the FANUC 0-T: code 5, written active low: 1010 (bit 0 first).
+    command = FeedOverride(applied_pct=999.0, pmc_bits=[False, True, False, True],
+                           table='fanuc_0t_4bit')
+    assert spin_until(lambda: overrides.publish(command) or sim.applied_pct == 50.0)
+    sim.step()
+    assert spin_until(lambda: truth[-1].override_pct == 50.0)
+
+
+def test_lathe_sim_rejects_changes_to_a_running_plant(context, executor):
+    sim = LatheSimNode(lockstep=True, context=context)
+    result = set_parameter(sim, 'servo_time_constant_s', 0.2)
+    assert not result.successful and 'read-only' in result.reason
+
+
+# --- force_estimator -------------------------------------------------------------------------
+
+def test_estimator_publishes_one_estimate_per_block(context, executor, spin_until):
+    estimator = ForceEstimatorNode(context=context)
+    executor.add_node(estimator)
+    probe = Probe(context, executor)
+    estimates = probe.listen(ForceEstimate, 'force/estimate')
+    blocks = probe.publisher(ServoCurrents, 'servo/currents')
+    t = [0.0]
+
+    def next_block():
+        t[0] += 0.01
+        return block(t[0])
+
+    assert spin_until(lambda: blocks.publish(next_block()) or len(estimates) >= 3)
+    assert all(e.status == ForceEstimate.STATUS_OK for e in estimates)
+    assert estimates[-1].header.stamp.nanosec % 1_000_000 == 9_000_000 % 1_000_000  # last sample
+
+
+def test_estimator_marks_bad_blocks_invalid_and_stays_finite(context, executor, spin_until):
+    estimator = ForceEstimatorNode(context=context)
+    executor.add_node(estimator)
+    probe = Probe(context, executor)
+    estimates = probe.listen(ForceEstimate, 'force/estimate')
+    blocks = probe.publisher(ServoCurrents, 'servo/currents')
+    t = [0.0]
+
+    def next_block():
+        t[0] += 0.01
+        return block(t[0])
+
+    assert spin_until(lambda: blocks.publish(next_block()) or len(estimates) >= 1)
+    assert spin_until(lambda: estimates[-1].header.stamp.nanosec == round(t[0] * 1e9) + 9_000_000)
+    good = estimates[-1].force_n
+    blocks.publish(block(2.0, nan=True))
+    assert spin_until(lambda: estimates[-1].status != ForceEstimate.STATUS_OK)
+    bad = estimates[-1]
+    assert bad.status == ForceEstimate.STATUS_INVALID_INPUT
+    assert 'non-finite' in bad.detail and bad.force_n == good and math.isfinite(bad.force_rate_n_s)
+    count = len(estimates)
+    blocks.publish(block(0.001))   # a stamp before the last good one
+    assert spin_until(lambda: len(estimates) > count)
+    assert estimates[-1].status == ForceEstimate.STATUS_INVALID_INPUT
+    assert 'not after' in estimates[-1].detail
+
+
+# --- force_controller ------------------------------------------------------------------------
+
+def estimate(force_n: float, sec: int = 1, status: int = ForceEstimate.STATUS_OK):
+    msg = ForceEstimate(force_n=force_n, force_rate_n_s=0.0, status=status)
+    msg.header.stamp.sec = sec
+    return msg
+
+
+def test_controller_answers_each_estimate_with_its_stamp(context, executor, spin_until):
+    controller = ForceControllerNode(context=context)
+    executor.add_node(controller)
+    probe = Probe(context, executor)
+    commands = probe.listen(FeedCommand, 'control/feed_command')
+    estimates = probe.publisher(ForceEstimate, 'force/estimate')
+    assert until_heard(spin_until, estimates, estimate(450.0, sec=7), commands)
+    command = commands[-1]
+    assert command.header.stamp.sec == 7 and command.controller == 'smc'
+    assert command.tracking_error_n == -50.0 and command.reference_force_n == 500.0
+    assert 0.0 <= command.override_pct <= 150.0
+
+
+def test_controller_ignores_estimates_it_cannot_trust(context, executor, spin_until):
+    controller = ForceControllerNode(context=context)
+    executor.add_node(controller)
+    probe = Probe(context, executor)
+    commands = probe.listen(FeedCommand, 'control/feed_command')
+    estimates = probe.publisher(ForceEstimate, 'force/estimate')
+    assert until_heard(spin_until, estimates, estimate(450.0), commands)
+    before = len(commands)
+    for _ in range(20):
+        estimates.publish(estimate(450.0, status=ForceEstimate.STATUS_INVALID_INPUT))
+    # Then one good estimate: it is answered, the invalid ones were not.
+    assert until_heard(spin_until, estimates, estimate(450.0, sec=9), commands, before + 1)
+    assert len(commands) == before + 1 and commands[-1].header.stamp.sec == 9
+
+
+def test_late_joining_controller_gets_the_reference(context, executor, spin_until):
+    probe = Probe(context, executor)
+    reference = probe.publisher(Float64, 'force/reference', REFERENCE_QOS)
+    reference.publish(Float64(data=420.0))          # before the controller exists
+    controller = ForceControllerNode(context=context)
+    executor.add_node(controller)
+    assert spin_until(
+        lambda: controller.get_parameter('reference_force_n').value == 420.0)
+    commands = probe.listen(FeedCommand, 'control/feed_command')
+    estimates = probe.publisher(ForceEstimate, 'force/estimate')
+    assert until_heard(spin_until, estimates, estimate(450.0), commands)
+    assert commands[-1].reference_force_n == 420.0 and commands[-1].tracking_error_n == 30.0
+
+
+def test_controller_gains_change_while_cutting_and_bad_ones_are_refused(context, executor):
+    controller = ForceControllerNode(context=context)
+    executor.add_node(controller)
+    ok = set_parameter(controller, 'smc_epsilon_n', 150.0)
+    assert ok.successful and controller._controller.settings.smc_epsilon_n == 150.0
+    refused = set_parameter(controller, 'smc_lambda_per_s', 50.0)
+    assert not refused.successful
+    assert 'force_controller.smc_lambda_per_s = 50.0' in refused.reason
+    assert 'Eq. 24' in refused.reason
+    assert controller.get_parameter('smc_lambda_per_s').value == 20.0
+    nan = set_parameter(controller, 'reference_force_n', math.nan)
+    assert not nan.successful and 'reference_force_n' in nan.reason and 'nan' in nan.reason
+    fixed = set_parameter(controller, 'controller', 'pi')
+    assert not fixed.successful and 'read-only' in fixed.reason
+
+
+# --- pmc_bridge ------------------------------------------------------------------------------
+
+def command(pct: float, sec: int = 1):
+    msg = FeedCommand(override_pct=pct, controller='smc')
+    msg.header.stamp.sec = sec
+    return msg
+
+
+@pytest.fixture
+def bridge_probe(context, executor):
+    bridge = PmcBridgeNode(context=context, parameter_overrides=[
+        Parameter('safe_override_pct', value=20.0), Parameter('overload_force_n', value=900.0),
+        Parameter('watchdog_period_s', value=0.05)])
+    executor.add_node(bridge)
+    probe = Probe(context, executor)
+    overrides = probe.listen(FeedOverride, 'pmc/feed_override')
+    return bridge, probe, overrides
+
+
+def call(node, spin_until, service):
+    client = node.create_client(Trigger, service)
+    assert client.wait_for_service(timeout_sec=10.0)
+    future = client.call_async(Trigger.Request())
+    assert spin_until(future.done)
+    return future.result()
+
+
+def test_bridge_starts_disarmed_and_arms_by_service(context, executor, spin_until,
+                                                    bridge_probe):
+    bridge, probe, overrides = bridge_probe
+    commands = probe.publisher(FeedCommand, 'control/feed_command')
+    assert until_heard(spin_until, commands, command(113.0), overrides)
+    assert spin_until(lambda: overrides[-1].requested_pct == 113.0)
+    first = overrides[-1]
+    assert (first.applied_pct, first.reason, first.armed) == (100.0,
+                                                              FeedOverride.REASON_DISARMED, False)
+    assert call(probe.node, spin_until, '/pmc_bridge/arm').success
+    commands.publish(command(113.0, sec=2))
+    assert spin_until(lambda: overrides[-1].reason == FeedOverride.REASON_NORMAL)
+    normal = overrides[-1]
+    assert normal.applied_pct == 110.0 and normal.armed
+    assert normal.pmc_code == 11 and list(normal.pmc_bits) == [False, False, True, False]
+    assert bridge.backend.code == 11
+    assert call(probe.node, spin_until, '/pmc_bridge/disarm').success
+    assert spin_until(lambda: overrides[-1].reason == FeedOverride.REASON_DISARMED)
+
+
+def test_bridge_watchdog_sends_a_stale_command_to_the_safe_override(
+        context, executor, spin_until, bridge_probe):
+    bridge, probe, overrides = bridge_probe
+    assert set_parameter(bridge, 'armed', True).successful
+    commands = probe.publisher(FeedCommand, 'control/feed_command')
+    assert until_heard(spin_until, commands, command(60.0), overrides)
+    assert spin_until(lambda: overrides[-1].reason == FeedOverride.REASON_NORMAL)
+    # No more commands: within a few watchdog periods the safe override goes out, with why.
+    assert spin_until(lambda: overrides[-1].reason == FeedOverride.REASON_WATCHDOG, 5.0)
+    assert overrides[-1].applied_pct == 20.0 and 'old' in overrides[-1].detail
+
+
+def test_bridge_refuses_a_non_finite_command(context, executor, spin_until, bridge_probe):
+    bridge, probe, overrides = bridge_probe
+    assert set_parameter(bridge, 'armed', True).successful
+    commands = probe.publisher(FeedCommand, 'control/feed_command')
+    assert until_heard(spin_until, commands, command(math.nan), overrides)
+    assert spin_until(lambda: overrides[-1].reason == FeedOverride.REASON_INVALID_COMMAND)
+    assert overrides[-1].applied_pct == 20.0 and bridge.backend.code == 2
+
+
+def test_bridge_holds_the_feed_on_overload_until_re_armed(context, executor, spin_until,
+                                                          bridge_probe):
+    bridge, probe, overrides = bridge_probe
+    assert set_parameter(bridge, 'armed', True).successful
+    commands = probe.publisher(FeedCommand, 'control/feed_command')
+    estimates = probe.publisher(ForceEstimate, 'force/estimate')
+    assert until_heard(spin_until, commands, command(100.0), overrides)
+    assert spin_until(lambda: estimates.publish(estimate(950.0)) or
+                      overrides[-1].reason == FeedOverride.REASON_OVERLOAD_HOLD)
+    assert overrides[-1].applied_pct == 0.0 and '950 N' in overrides[-1].detail
+    commands.publish(command(120.0, sec=3))      # the controller cannot lift the hold
+    assert spin_until(lambda: overrides[-1].header.stamp.sec == 3)
+    assert overrides[-1].reason == FeedOverride.REASON_OVERLOAD_HOLD
+    # The force is back down; let the 950 N estimates still in flight arrive, then re-arm.
+    estimates.publish(estimate(400.0))
+    spin_until(lambda: False, timeout_s=0.5)
+    assert call(probe.node, spin_until, '/pmc_bridge/arm').success
+    commands.publish(command(120.0, sec=4))
+    assert spin_until(lambda: overrides[-1].reason == FeedOverride.REASON_NORMAL)
+    assert overrides[-1].applied_pct == 120.0
+
+
+def test_bridge_rejects_a_bad_safe_override(context, executor, bridge_probe):
+    bridge, _, _ = bridge_probe
+    result = set_parameter(bridge, 'safe_override_pct', 200.0)  # a PMC level, not on this table
+    assert not result.successful
+    assert 'pmc_bridge.safe_override_pct = 200.0: outside the fanuc_0t_4bit' in result.reason
+    assert bridge.gate.settings.safe_override_pct == 20.0

@@ -1,0 +1,180 @@
+"""Sessions: the graph run in lock-step to MCAP, read back by rosbags and by the mcap reader,
+equal to the core loop, replayed, drawn; and what a killed recorder leaves."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Message
+from mcap.stream_reader import StreamReader
+from mcap_ros2.decoder import DecoderFactory
+from rclpy.node import Node
+from rosbags.highlevel import AnyReader
+from turning_force_msgs.msg import ServoCurrents
+
+from turning_force.core.experiment import load_experiment
+from turning_force.core.simulate import simulate
+from turning_force.session.bag import (
+    CUSTOM_EXPERIMENT,
+    CUSTOM_PARAMETERS,
+    CUSTOM_VERSIONS,
+    BagError,
+    typestore,
+)
+from turning_force.session.reader import read_session, recorded_metrics
+from turning_force.session.replay import replay
+from turning_force.session.report import write_report
+from turning_force.session.run import run_lockstep
+
+ROOT = Path(__file__).resolve().parents[2]
+FIG8 = ROOT / 'config' / 'experiments' / 'park1998_fig8.yaml'
+TOPICS = {'/servo/currents', '/servo/joint_state', '/sim/cutting_state', '/force/estimate',
+          '/control/feed_command', '/pmc/feed_override', '/force/reference', '/diagnostics'}
+
+
+@pytest.fixture(scope='module')
+def fig8_session(tmp_path_factory):
+    experiment = load_experiment(FIG8)
+    bag = tmp_path_factory.mktemp('run') / 'fig8'
+    outcome = run_lockstep(experiment, bag)
+    return experiment, bag, outcome
+
+
+def test_graph_run_equals_the_core_loop(fig8_session):
+    # Same plant, estimator, controller and quantiser, the same one-period delay, float64 on
+    # the wire: the graph must give the core loop's metrics. The tolerance (1e-9 relative) only
+    # allows for summation order; in practice they agree to the last digit.
+    experiment, bag, outcome = fig8_session
+    graph = recorded_metrics(read_session(bag))
+    core = simulate(experiment).metrics
+    for name, value in graph.items():
+        assert value == pytest.approx(core[name], rel=1e-9, abs=1e-12), name
+    assert outcome.steps == 1200 and outcome.realtime_factor > 1.0
+
+
+def test_same_file_and_seed_give_identical_sessions(fig8_session, tmp_path):
+    experiment, bag, _ = fig8_session
+    again = tmp_path / 'again'
+    run_lockstep(experiment, again)
+    first, second = read_session(bag), read_session(again)
+    assert recorded_metrics(first) == recorded_metrics(second)
+    for name, values in first.signals.items():
+        np.testing.assert_array_equal(values, second.signals[name], err_msg=name)
+
+
+def test_rosbags_reads_every_topic_and_the_embedded_records(fig8_session):
+    experiment, bag, _ = fig8_session
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        assert set(counts) == TOPICS
+        for topic in ('/servo/currents', '/force/estimate', '/control/feed_command',
+                      '/sim/cutting_state'):
+            assert counts[topic] == 1200, topic
+        connection = next(c for c in reader.connections if c.topic == '/servo/currents')
+        _, _, raw = next(reader.messages(connections=[connection]))
+        first = reader.deserialize(raw, connection.msgtype)
+        assert len(first.phase_u_a) == 10 and first.sample_period_s == 1e-3
+    session = read_session(bag)
+    assert session.custom_data[CUSTOM_EXPERIMENT] == FIG8.read_text()
+    params = json.loads(session.custom_data[CUSTOM_PARAMETERS])
+    assert params['force_controller']['smc_epsilon_n'] == 200.0
+    assert params['pmc_bridge']['override_table'] == 'fanuc_0t_4bit'
+    assert json.loads(session.custom_data[CUSTOM_VERSIONS])['turning_force']
+
+
+def test_mcap_reader_decodes_the_session(fig8_session):
+    _, bag, _ = fig8_session
+    with (bag / f'{bag.name}.mcap').open('rb') as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        assert {c.topic for c in summary.channels.values()} == TOPICS
+        assert {s.encoding for s in summary.schemas.values()} == {'ros2msg'}
+        overrides = [m for _, _, _, m in reader.iter_decoded_messages(
+            topics=['/pmc/feed_override'])]
+    levels = {o.applied_pct for o in overrides}
+    assert levels <= {10.0 * k for k in range(16)}   # only FANUC 0-T levels reached the PMC
+    assert all(len(o.pmc_bits) == 4 for o in overrides)
+
+
+def test_replaying_unchanged_reproduces_the_recording(fig8_session):
+    _, bag, _ = fig8_session
+    result = replay(read_session(bag))
+    assert result.max_force_difference_n == 0.0
+    assert result.max_request_difference_pct == 0.0
+    assert result.differing_overrides == 0
+    assert result.rerun == result.recorded
+
+
+def test_replay_with_other_settings_changes_the_commands_not_the_currents(fig8_session):
+    _, bag, _ = fig8_session
+    result = replay(read_session(bag), ['force_controller.controller=pi'])
+    assert result.max_force_difference_n == 0.0     # open loop: same currents, same estimates
+    assert result.differing_overrides > 100
+    assert result.experiment.controller.controller == 'pi'
+
+
+def test_report_is_a_png(fig8_session, tmp_path):
+    _, bag, _ = fig8_session
+    session = read_session(bag)
+    out = write_report(session, recorded_metrics(session), tmp_path / 'fig8.png')
+    header = out.read_bytes()[:24]
+    assert header[:8] == b'\x89PNG\r\n\x1a\n'
+    width, height = struct.unpack('>II', header[16:24])
+    assert (width, height) == (1440, 1020)
+
+
+def test_a_broken_session_is_named(tmp_path):
+    with pytest.raises(BagError, match=f'{tmp_path}: not a rosbag2 folder'):
+        read_session(tmp_path)
+    (tmp_path / 'metadata.yaml').write_text('rosbag2_bagfile_information: [')
+    with pytest.raises(BagError, match='metadata.yaml: not rosbag2 metadata'):
+        read_session(tmp_path)
+
+
+def test_a_killed_recorder_loses_at_most_about_a_second(context, executor, spin_until,
+                                                         tmp_path):
+    bag = tmp_path / 'killed'
+    namespace = f'/killed_{os.getpid()}'
+    recorder = subprocess.Popen(
+        [str(Path(sys.prefix) / 'bin' / 'session_recorder'), '--ros-args',
+         '-r', f'__ns:={namespace}', '-p', f'output_dir:={bag}'],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        node = Node('killer', context=context)
+        executor.add_node(node)
+        publisher = node.create_publisher(ServoCurrents, f'{namespace}/servo/currents', 100)
+        sent = [0]
+
+        def send() -> None:
+            msg = ServoCurrents(sample_period_s=1e-3, phase_u_a=[float(sent[0])])
+            publisher.publish(msg)
+            sent[0] += 1
+
+        assert spin_until(lambda: publisher.get_subscription_count() > 0, 20.0)
+        node.create_timer(0.01, send)                   # 100 blocks a second
+        spin_until(lambda: sent[0] >= 300, 30.0)        # three seconds of cutting
+    finally:
+        recorder.send_signal(signal.SIGKILL)
+        recorder.wait(timeout=10)
+    assert not (bag / 'metadata.yaml').exists()         # it never closed the bag
+    recovered = []
+    with (bag / 'killed.mcap').open('rb') as stream:
+        try:
+            for record in StreamReader(stream, skip_magic=False).records:
+                if isinstance(record, Message):
+                    recovered.append(record)
+        except (McapError, EOFError, struct.error):
+            pass                                        # the torn tail of the file
+    # Flushed at least once a second: what is lost is the last second or so (100 blocks), plus
+    # the ones still in flight when the kill came.
+    assert len(recovered) >= sent[0] - 150, (len(recovered), sent[0])
