@@ -73,7 +73,7 @@ def test_same_file_and_seed_give_identical_sessions(fig8_session, tmp_path):
 
 
 def test_rosbags_reads_every_topic_and_the_embedded_records(fig8_session):
-    experiment, bag, _ = fig8_session
+    _, bag, _ = fig8_session
     with AnyReader([bag], default_typestore=typestore()) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
         assert set(counts) == TOPICS
@@ -137,7 +137,7 @@ def test_a_broken_session_is_named(tmp_path):
     with pytest.raises(BagError, match=f'{tmp_path}: not a rosbag2 folder'):
         read_session(tmp_path)
     (tmp_path / 'metadata.yaml').write_text('rosbag2_bagfile_information: [')
-    with pytest.raises(BagError, match='metadata.yaml: not rosbag2 metadata'):
+    with pytest.raises(BagError, match=r'metadata\.yaml: not rosbag2 metadata'):
         read_session(tmp_path)
 
 
