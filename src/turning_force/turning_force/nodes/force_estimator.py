@@ -5,7 +5,8 @@ Subscribes ``servo/currents`` (turning_force_msgs/ServoCurrents); publishes ``fo
 :class:`turning_force.core.estimation.ForceEstimator`; parameters are
 :class:`turning_force.core.estimation.EstimatorSettings` (``ros2 param describe`` lists them
 with units and ranges). A block with non-finite samples or an out-of-order stamp is published
-as ``STATUS_INVALID_INPUT`` with the last good, finite force.
+as ``STATUS_INVALID_INPUT`` with the last good, finite force; when blocks stop coming for
+five block periods, ``STATUS_STALE`` estimates say so every ``STALE_CHECK_S``.
 """
 
 from __future__ import annotations
@@ -18,11 +19,20 @@ from rclpy.node import Node
 from turning_force_msgs.msg import ForceEstimate, ServoCurrents
 
 from turning_force.core.estimation import EstimateStatus, EstimatorSettings, ForceEstimator
-from turning_force.nodes.convert import estimate_to_msg, servo_currents_to_block
+from turning_force.nodes.convert import (
+    estimate_to_msg,
+    last_sample_ns,
+    ns_to_stamp,
+    servo_currents_to_block,
+)
+from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
 from turning_force.nodes.spin import run_nodes
 
 __all__ = ['ForceEstimatorNode', 'main']
+
+
+STALE_CHECK_S = 0.1
 
 
 class ForceEstimatorNode(Node):
@@ -32,20 +42,45 @@ class ForceEstimatorNode(Node):
         super().__init__('force_estimator', **kwargs)
         self.parameters = SettingsParameters(self, EstimatorSettings, self._reconfigure)
         self._estimator = ForceEstimator(self.parameters.current)
+        self.diagnostics = Diagnostics(self)
         self._publisher = self.create_publisher(ForceEstimate, 'force/estimate', 10)
         self.create_subscription(ServoCurrents, 'servo/currents', self._on_currents, 10)
+        self._watching = False
+        self.create_timer(STALE_CHECK_S, self._check_stale)
 
     def _reconfigure(self, settings: EstimatorSettings) -> None:
         self._estimator = ForceEstimator(settings)
 
+    def _check_stale(self) -> None:
+        if self._watching and self.diagnostics.stale('servo/currents'):
+            last = self._estimator.last
+            out = estimate_to_msg(last)
+            out.status = ForceEstimate.STATUS_STALE
+            out.detail = 'no servo/currents for five block periods'
+            out.header.stamp = self.get_clock().now().to_msg()
+            self._publisher.publish(out)
+            self.diagnostics.published('force/estimate')
+
     def _on_currents(self, msg: ServoCurrents) -> None:
+        self.diagnostics.received('servo/currents')
+        if not self._watching and msg.sample_period_s > 0 and len(msg.phase_u_a):
+            period = len(msg.phase_u_a) * msg.sample_period_s
+            self.diagnostics.watch('servo/currents', stale_after_s=5 * period)
+            self.diagnostics.received('servo/currents')
+            self._watching = True
         estimate = self._estimator.update(servo_currents_to_block(msg))
         if estimate.status == EstimateStatus.INVALID_INPUT:
             self.get_logger().warning(f'servo/currents: {estimate.detail}',
                                       throttle_duration_sec=1.0)
+            self.diagnostics.error(f'servo/currents: {estimate.detail}')
+        elif estimate.status == EstimateStatus.SATURATED:
+            self.diagnostics.warn(estimate.detail)
         out = estimate_to_msg(estimate)
         out.header.frame_id = msg.header.frame_id
+        if estimate.status != EstimateStatus.INVALID_INPUT:
+            out.header.stamp = ns_to_stamp(last_sample_ns(msg))
         self._publisher.publish(out)
+        self.diagnostics.published('force/estimate')
 
 
 def main(args: Sequence[str] | None = None) -> int:

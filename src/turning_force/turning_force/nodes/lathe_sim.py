@@ -11,7 +11,6 @@ one control period per step (lock-step simulation). Parameters:
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -24,7 +23,12 @@ from turning_force_msgs.msg import CuttingState, FeedOverride, ServoCurrents
 
 from turning_force.core.overrides import get_table
 from turning_force.core.plant import LathePlant, PlantBlock, PlantSettings
-from turning_force.nodes.convert import block_to_servo_currents, seconds_to_stamp
+from turning_force.nodes.convert import (
+    block_to_servo_currents,
+    last_sample_ns,
+    ns_to_stamp,
+    stamp_to_ns,
+)
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
 from turning_force.nodes.spin import run_nodes
@@ -49,9 +53,10 @@ class LatheSimNode(Node):
         self._applied_pct = 100.0  # the PMC starts at the programmed feed
         self._plant = LathePlant(settings, initial_override_pct=self._applied_pct)
         # Plant time 0 is this node's clock at start (0 in lock-step sim time).
-        self._t0_s = 0.0 if lockstep else self.get_clock().now().nanoseconds * 1e-9
+        self._t0_ns = 0 if lockstep else self.get_clock().now().nanoseconds
         self.last_override_stamp_ns = -1
         self._awaited: tuple[int, Future[int]] | None = None
+        self._last_message = ServoCurrents()
         self.diagnostics = Diagnostics(self)
         self.diagnostics.watch('pmc/feed_override', stale_after_s=5 * settings.control_period_s)
         self._clock_publisher = (self.create_publisher(Clock, '/clock', 10)
@@ -76,7 +81,7 @@ class LatheSimNode(Node):
             self.diagnostics.error(f'pmc/feed_override: {exc}')
             return
         self._applied_pct = pct
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp_ns = stamp_to_ns(msg.header.stamp)
         self.last_override_stamp_ns = stamp_ns
         if self._awaited is not None and self._awaited[0] == stamp_ns:
             self._awaited[1].set_result(stamp_ns)
@@ -85,10 +90,8 @@ class LatheSimNode(Node):
     def answer(self, block: PlantBlock) -> Future[int]:
         """A future done when the override answering ``block`` (stamped with its last sample's
         time, as the estimate, command and override that answer it are) has arrived."""
-        currents = block.currents
-        last_s = self._t0_s + currents.t0_s + (len(currents) - 1) * currents.sample_period_s
         future: Future[int] = Future()
-        self._awaited = (round(last_s * 1e9), future)
+        self._awaited = (last_sample_ns(self._last_message), future)
         return future
 
     def _tick(self) -> None:
@@ -98,13 +101,16 @@ class LatheSimNode(Node):
         """Advance one control period at the applied override and publish what it gives."""
         block = self._plant.step(self._applied_pct)
         currents = block.currents
-        t_end = self._t0_s + currents.t0_s + len(currents) * currents.sample_period_s
-        if self._clock_publisher is not None:
-            self._clock_publisher.publish(Clock(clock=seconds_to_stamp(t_end)))
         frame = 'z_axis'
-        shifted = dataclasses.replace(currents, t0_s=self._t0_s + currents.t0_s)
-        self._currents.publish(block_to_servo_currents(shifted, frame))
-        last = seconds_to_stamp(t_end - currents.sample_period_s)
+        message = block_to_servo_currents(currents, frame)
+        message.header.stamp = ns_to_stamp(self._t0_ns + round(currents.t0_s * 1e9))
+        last_ns = last_sample_ns(message)
+        if self._clock_publisher is not None:  # the block is complete one sample later
+            end_ns = last_ns + round(currents.sample_period_s * 1e9)
+            self._clock_publisher.publish(Clock(clock=ns_to_stamp(end_ns)))
+        self._currents.publish(message)
+        self._last_message = message
+        last = ns_to_stamp(last_ns)
         joint = JointState(name=['z'], position=[self._plant.position_mm / 1000.0],
                            velocity=[float(currents.feed_rate_mm_min[-1]) / 60000.0],
                            effort=[float(block.force_n[-1])])

@@ -116,20 +116,23 @@ def read_session(path: str | Path) -> Session:
     blocks: list[CurrentBlock] = []
     answers: dict[str, dict[int, Any]] = {'force/estimate': {}, 'control/feed_command': {},
                                           'pmc/feed_override': {}, 'sim/cutting_state': {}}
+    stamps_of: dict[int, int] = {}   # id(block) -> stamp of its last sample [ns]
     for topic, msg in _messages(path):
         if topic == 'servo/currents':
+            stamp = _ns(msg.header.stamp)
             blocks.append(CurrentBlock(
                 _ns(msg.header.stamp) * 1e-9, float(msg.sample_period_s),
                 np.asarray(msg.phase_u_a, dtype=float), np.asarray(msg.phase_v_a, dtype=float),
                 np.asarray(msg.rotor_angle_rad, dtype=float),
                 np.asarray(msg.feed_rate_mm_min, dtype=float)))
+            stamps_of[id(blocks[-1])] = stamp + round((len(msg.phase_u_a) - 1)
+                                                      * float(msg.sample_period_s) * 1e9)
         elif topic in answers:
             answers[topic].setdefault(_ns(msg.header.stamp), msg)
     if not blocks:
         raise BagError(f'{path}: no servo/currents in the session')
     blocks.sort(key=lambda b: b.t0_s)
-    stamps = np.array([round((b.t0_s + (len(b) - 1) * b.sample_period_s) * 1e9)
-                       for b in blocks], dtype=np.int64)
+    stamps = np.array([stamps_of[id(b)] for b in blocks], dtype=np.int64)
     t_end = np.array([b.t0_s + len(b) * b.sample_period_s for b in blocks])
 
     def column(topic: str, attribute: str) -> FloatArray:
