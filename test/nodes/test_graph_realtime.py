@@ -60,7 +60,8 @@ def test_whole_graph_in_one_process_regulates_and_records(context, executor, spi
         stop(graph)
     session = read_session(bag)
     t, force = session.t_s - session.blocks[0].t0_s, session.signals['force_n']
-    assert not np.any(np.isnan(force))   # every block's truth found by its stamp
+    # Every block's truth is found by its stamp (the last may be cut off by the stop).
+    assert not np.any(np.isnan(force[:-1]))
     # Settled on the reference within the 25 N allowed error before the 4 s depth step, as in
     # the lock-step run.
     settled = (t >= 2.5) & (t < 3.9)

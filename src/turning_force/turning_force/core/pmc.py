@@ -84,15 +84,23 @@ class Decision:
 class OverrideGate:
     """Decides the override written to the PMC from commands, force estimates and time."""
 
-    def __init__(self, settings: BridgeSettings, t_s: float = 0.0) -> None:
+    def __init__(self, settings: BridgeSettings, t_s: float | None = None) -> None:
         self.settings = settings
         self.table: OverrideTable = get_table(settings.override_table)
         self.armed = False
+        self.started = False
         self._requested = math.nan
         self._command_t_s = -math.inf
         self._armed_t_s = -math.inf
         self._overload = ''
-        if settings.armed:
+        if t_s is not None:
+            self.start(t_s)
+
+    def start(self, t_s: float) -> None:
+        """Begin at ``t_s`` (armed if the settings say so). A node starts its gate at its first
+        callback, when its clock runs: in a lock-step run sim time only starts then."""
+        self.started = True
+        if self.settings.armed:
             self.arm(t_s)
 
     def reconfigure(self, settings: BridgeSettings, t_s: float) -> None:

@@ -31,6 +31,7 @@ class Diagnostics:
 
     def __init__(self, node: Node, period_s: float = 1.0) -> None:
         self._node = node
+        self._period_s = period_s
         self._publisher = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._inputs: dict[str, _Topic] = {}
         self._outputs: dict[str, _Topic] = {}
@@ -38,7 +39,7 @@ class Diagnostics:
         self._warnings: list[str] = []
         self._error_texts: list[str] = []
         self._values: dict[str, str] = {}
-        self._last_report_s = self._now()
+        self._last_report_s: float | None = None  # the clock may not run yet (lock-step)
         self._timer = node.create_timer(period_s, self.report)
 
     def _now(self) -> float:
@@ -90,6 +91,8 @@ class Diagnostics:
 
     def report(self) -> None:
         now = self._now()
+        if self._last_report_s is None:
+            self._last_report_s = now - self._period_s
         elapsed = max(now - self._last_report_s, 1e-9)
         values = [KeyValue(key='errors_total', value=str(self._errors))]
         messages = []

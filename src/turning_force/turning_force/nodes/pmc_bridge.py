@@ -48,7 +48,7 @@ class PmcBridgeNode(Node):
         super().__init__('pmc_bridge', **kwargs)
         self.parameters = SettingsParameters(self, BridgeSettings, self._reconfigure)
         settings = self.parameters.current
-        self.gate = OverrideGate(settings, self._now_s())
+        self.gate = OverrideGate(settings)
         self.backend = SimulatedPmc()
         self._last_written: Decision | None = None
         self.diagnostics = Diagnostics(self)
@@ -60,10 +60,12 @@ class PmcBridgeNode(Node):
         self.create_service(Trigger, '~/disarm', self._on_disarm)
         self.create_timer(settings.control_period_s, self._on_timer)
         self._last_reason: Reason | None = None
-        self._write(self.gate.decide(self._now_s()), None)  # the PMC starts where we say
 
     def _now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        now = self.get_clock().now().nanoseconds * 1e-9
+        if not self.gate.started:
+            self.gate.start(now)
+        return now
 
     def _reconfigure(self, settings: BridgeSettings) -> None:
         self.gate.reconfigure(settings, self._now_s())
