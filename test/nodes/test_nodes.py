@@ -18,6 +18,7 @@ from turning_force_msgs.msg import (
     ServoCurrents,
 )
 
+from turning_force.core.errors import ConfigError
 from turning_force.nodes.force_controller import REFERENCE_QOS, ForceControllerNode
 from turning_force.nodes.force_estimator import ForceEstimatorNode
 from turning_force.nodes.lathe_sim import LatheSimNode
@@ -93,37 +94,40 @@ def test_lathe_sim_rejects_changes_to_a_running_plant(context, executor):
 
 # --- force_estimator -------------------------------------------------------------------------
 
-def test_estimator_publishes_one_estimate_per_block(context, executor, spin_until):
-    estimator = ForceEstimatorNode(context=context)
-    executor.add_node(estimator)
+class BlockFeeder:
+    """Publishes blocks of currents 10 ms apart; remembers the stamps sent [ns]."""
+
+    def __init__(self, probe: Probe) -> None:
+        self.publisher = probe.publisher(ServoCurrents, 'servo/currents')
+        self.sent_ns: list[int] = []
+
+    def __call__(self) -> None:
+        t_s = 0.01 * (len(self.sent_ns) + 1)
+        self.sent_ns.append(round(t_s * 1e9))
+        self.publisher.publish(block(t_s))
+
+
+@pytest.fixture
+def estimator_rig(context, executor):
+    executor.add_node(ForceEstimatorNode(context=context))
     probe = Probe(context, executor)
-    estimates = probe.listen(ForceEstimate, 'force/estimate')
-    blocks = probe.publisher(ServoCurrents, 'servo/currents')
-    t = [0.0]
+    return probe.listen(ForceEstimate, 'force/estimate'), BlockFeeder(probe)
 
-    def next_block():
-        t[0] += 0.01
-        return block(t[0])
 
-    assert spin_until(lambda: blocks.publish(next_block()) or len(estimates) >= 3)
+def test_estimator_publishes_one_estimate_per_block(estimator_rig, spin_until):
+    estimates, feed = estimator_rig
+    assert spin_until(lambda: feed() or len(estimates) >= 3)
     assert all(e.status == ForceEstimate.STATUS_OK for e in estimates)
-    assert estimates[-1].header.stamp.nanosec % 1_000_000 == 9_000_000 % 1_000_000  # last sample
+    # Each estimate carries the time of its block's last sample: the block's stamp + 9 ms.
+    for e in estimates:
+        assert e.header.stamp.nanosec - 9_000_000 in feed.sent_ns
 
 
-def test_estimator_marks_bad_blocks_invalid_and_stays_finite(context, executor, spin_until):
-    estimator = ForceEstimatorNode(context=context)
-    executor.add_node(estimator)
-    probe = Probe(context, executor)
-    estimates = probe.listen(ForceEstimate, 'force/estimate')
-    blocks = probe.publisher(ServoCurrents, 'servo/currents')
-    t = [0.0]
-
-    def next_block():
-        t[0] += 0.01
-        return block(t[0])
-
-    assert spin_until(lambda: blocks.publish(next_block()) or len(estimates) >= 1)
-    assert spin_until(lambda: estimates[-1].header.stamp.nanosec == round(t[0] * 1e9) + 9_000_000)
+def test_estimator_marks_bad_blocks_invalid_and_stays_finite(estimator_rig, spin_until):
+    estimates, feed = estimator_rig
+    blocks = feed.publisher
+    assert spin_until(lambda: feed() or len(estimates) >= 1)
+    assert spin_until(lambda: estimates[-1].header.stamp.nanosec == feed.sent_ns[-1] + 9_000_000)
     good = estimates[-1].force_n
     blocks.publish(block(2.0, nan=True))
     assert spin_until(lambda: estimates[-1].status != ForceEstimate.STATUS_OK)
@@ -300,3 +304,24 @@ def test_bridge_rejects_a_bad_safe_override(context, executor, bridge_probe):
     assert not result.successful
     assert 'pmc_bridge.safe_override_pct = 200.0: outside the fanuc_0t_4bit' in result.reason
     assert bridge.gate.settings.safe_override_pct == 20.0
+
+
+# --- parameters from a file ------------------------------------------------------------------
+
+def test_a_parameter_no_node_declares_is_refused_at_start(context):
+    # rclpy would ignore it; a mistyped limit must not leave the default limit in force.
+    with pytest.raises(ConfigError, match='overload_force_nn: no node of turning_force'):
+        PmcBridgeNode(context=context,
+                      parameter_overrides=[Parameter('overload_force_nn', value=900.0)])
+
+
+def test_a_shared_parameter_of_another_node_is_accepted(context):
+    node = ForceEstimatorNode(context=context,
+                              parameter_overrides=[Parameter('spindle_speed_rpm', value=600.0)])
+    node.destroy_node()
+
+
+def test_a_value_of_the_wrong_type_is_refused_at_start(context):
+    with pytest.raises(ConfigError, match=r"pmc_bridge\.safe_override_pct: .*'INTEGER'"):
+        PmcBridgeNode(context=context,
+                      parameter_overrides=[Parameter('safe_override_pct', value=40)])

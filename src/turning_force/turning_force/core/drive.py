@@ -14,10 +14,12 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core.errors import ConfigError
+from turning_force.core.settings import Settings, setting
 
 __all__ = [
     'CurrentBlock',
     'CurrentForceMap',
+    'FeedDriveSettings',
     'FrictionModel',
     'clarke_park',
     'inverse_park_clarke',
@@ -177,3 +179,40 @@ class CurrentForceMap:
 
     def force_n(self, current_a: FloatArray) -> FloatArray:
         return (current_a - self.offset_a) / self.per_force_a_n
+
+
+@dataclass(frozen=True)
+class FeedDriveSettings(Settings):
+    """The feed drive as a force sensor: friction (Eq. 25) and current-to-force (Eq. 26).
+
+    The simulator holds the machine's true values; the estimator holds what calibration found
+    (:func:`turning_force.core.estimation.calibrate_friction`). The same fields serve both.
+    """
+
+    friction_min_feed_mm_min: float = setting(6.0, 'Slowest feed of the friction curve (Park '
+                                              'Eq. 25)', 'mm/min', low=0.0, low_open=True)
+    friction_max_feed_mm_min: float = setting(300.0, 'Fastest feed of the friction curve',
+                                              'mm/min', low=0.0, low_open=True)
+    friction_at_min_feed_a: float = setting(0.60, 'Friction current at the slowest feed', 'A',
+                                            low=-100.0, high=100.0)
+    friction_at_max_feed_a: float = setting(0.35, 'Friction current at the fastest feed', 'A',
+                                            low=-100.0, high=100.0)
+    current_offset_a: float = setting(-0.12432, 'q-axis current at zero force (Park Eq. 26)',
+                                      'A', low=-100.0, high=100.0)
+    current_per_force_a_n: float = setting(0.00629, 'q-axis current per newton of cutting force '
+                                           '(Park Eq. 26)', 'A/N', low=0.0, low_open=True)
+
+    def check(self) -> None:
+        if self.friction_max_feed_mm_min <= self.friction_min_feed_mm_min:
+            self.fail('friction_max_feed_mm_min', 'must exceed friction_min_feed_mm_min '
+                      f'({self.friction_min_feed_mm_min})')
+
+    @property
+    def friction(self) -> FrictionModel:
+        return FrictionModel.from_end_points(
+            self.friction_min_feed_mm_min, self.friction_max_feed_mm_min,
+            self.friction_at_min_feed_a, self.friction_at_max_feed_a)
+
+    @property
+    def current_map(self) -> CurrentForceMap:
+        return CurrentForceMap(self.current_offset_a, self.current_per_force_a_n)

@@ -27,10 +27,11 @@ from scipy import signal
 from turning_force.core.drive import (
     CurrentBlock,
     CurrentForceMap,
+    FeedDriveSettings,
     FrictionModel,
     clarke_park,
 )
-from turning_force.core.settings import Settings, setting
+from turning_force.core.settings import setting
 
 __all__ = [
     'EstimateStatus',
@@ -53,8 +54,9 @@ class EstimateStatus(enum.IntEnum):
 
 
 @dataclass(frozen=True)
-class EstimatorSettings(Settings):
-    """The force estimator (``force_estimator`` parameters)."""
+class EstimatorSettings(FeedDriveSettings):
+    """The force estimator (``force_estimator`` parameters); the drive fields are the
+    calibrated friction (an air cut, :func:`calibrate_friction`) and current map."""
 
     SECTION = 'force_estimator'
 
@@ -72,35 +74,8 @@ class EstimatorSettings(Settings):
     kalman_accel_noise_n_s2: float = setting(2.0e4, 'Standard deviation of the force '
                                              'acceleration the model allows', 'N/s^2', low=0.0,
                                              low_open=True)
-    friction_min_feed_mm_min: float = setting(6.0, 'Slowest feed of the calibrated friction '
-                                              'curve (Eq. 25)', 'mm/min', low=0.0, low_open=True)
-    friction_max_feed_mm_min: float = setting(300.0, 'Fastest feed of the calibrated friction '
-                                              'curve', 'mm/min', low=0.0, low_open=True)
-    friction_at_min_feed_a: float = setting(0.60, 'Calibrated friction current at the slowest '
-                                            'feed', 'A', low=-100.0, high=100.0)
-    friction_at_max_feed_a: float = setting(0.35, 'Calibrated friction current at the fastest '
-                                            'feed', 'A', low=-100.0, high=100.0)
-    current_offset_a: float = setting(-0.12432, 'Current at zero force (Park Eq. 26)', 'A',
-                                      low=-100.0, high=100.0)
-    current_per_force_a_n: float = setting(0.00629, 'q-axis current per newton (Park Eq. 26)',
-                                           'A/N', low=0.0, low_open=True)
     current_range_a: float = setting(30.0, 'Phase-current sensor range; samples beyond it mark '
                                      'the estimate saturated', 'A', low=0.0, low_open=True)
-
-    def check(self) -> None:
-        if self.friction_max_feed_mm_min <= self.friction_min_feed_mm_min:
-            self.fail('friction_max_feed_mm_min', 'must exceed friction_min_feed_mm_min '
-                      f'({self.friction_min_feed_mm_min})')
-
-    @property
-    def friction(self) -> FrictionModel:
-        return FrictionModel.from_end_points(
-            self.friction_min_feed_mm_min, self.friction_max_feed_mm_min,
-            self.friction_at_min_feed_a, self.friction_at_max_feed_a)
-
-    @property
-    def current_map(self) -> CurrentForceMap:
-        return CurrentForceMap(self.current_offset_a, self.current_per_force_a_n)
 
 
 @dataclass(frozen=True)

@@ -22,13 +22,12 @@ from scipy import signal
 
 from turning_force.core.drive import (
     CurrentBlock,
-    CurrentForceMap,
-    FrictionModel,
+    FeedDriveSettings,
     inverse_park_clarke,
     rotor_angle_rad,
 )
 from turning_force.core.overrides import TABLES
-from turning_force.core.settings import Settings, setting
+from turning_force.core.settings import setting
 
 __all__ = ['DepthProfile', 'LathePlant', 'PlantBlock', 'PlantSettings']
 
@@ -36,8 +35,9 @@ FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class PlantSettings(Settings):
-    """The simulated lathe (``lathe_sim`` parameters)."""
+class PlantSettings(FeedDriveSettings):
+    """The simulated lathe (``lathe_sim`` parameters); the drive fields are the machine's
+    true friction and current map."""
 
     SECTION = 'lathe_sim'
 
@@ -77,18 +77,6 @@ class PlantSettings(Settings):
                                           'mm', low=0.0, high=50.0)
     depth_interpolation: str = setting('step', 'Depth between break points: held (steps) or '
                                        'linear (taper)', choices=('step', 'linear'))
-    friction_min_feed_mm_min: float = setting(6.0, 'Slowest feed of the friction curve (Eq. 25)',
-                                              'mm/min', low=0.0, low_open=True)
-    friction_max_feed_mm_min: float = setting(300.0, 'Fastest feed of the friction curve',
-                                              'mm/min', low=0.0, low_open=True)
-    friction_at_min_feed_a: float = setting(0.60, 'Friction current at the slowest feed', 'A',
-                                            low=-100.0, high=100.0)
-    friction_at_max_feed_a: float = setting(0.35, 'Friction current at the fastest feed', 'A',
-                                            low=-100.0, high=100.0)
-    current_offset_a: float = setting(-0.12432, 'Current at zero force (Park Eq. 26)', 'A',
-                                      low=-100.0, high=100.0)
-    current_per_force_a_n: float = setting(0.00629, 'q-axis current per newton of cutting force '
-                                           '(Park Eq. 26)', 'A/N', low=0.0, low_open=True)
     current_noise_a: float = setting(0.02, 'Standard deviation of the phase-current sensor noise',
                                      'A', low=0.0, high=10.0)
     force_noise_fraction: float = setting(0.0, 'Cutting-force fluctuation, uniform within '
@@ -99,6 +87,7 @@ class PlantSettings(Settings):
                                          low=0.0, low_open=True)
 
     def check(self) -> None:
+        super().check()
         if len(self.depth_times_s) != len(self.depth_mm) or not self.depth_mm:
             self.fail('depth_mm', f'needs one value per depth_times_s entry '
                                   f'({len(self.depth_times_s)})')
@@ -106,9 +95,6 @@ class PlantSettings(Settings):
             self.fail('depth_times_s', 'must start at 0')
         if any(b <= a for a, b in zip(self.depth_times_s, self.depth_times_s[1:], strict=False)):
             self.fail('depth_times_s', 'must be strictly increasing')
-        if self.friction_max_feed_mm_min <= self.friction_min_feed_mm_min:
-            self.fail('friction_max_feed_mm_min', 'must exceed friction_min_feed_mm_min '
-                      f'({self.friction_min_feed_mm_min})')
         per_block = self.control_period_s * self.sample_rate_hz
         whole = self.samples_per_block
         if whole < 1 or abs(per_block - whole) > 1e-6 * per_block:
@@ -127,15 +113,6 @@ class PlantSettings(Settings):
     def depth_profile(self) -> DepthProfile:
         return DepthProfile(self.depth_times_s, self.depth_mm, self.depth_interpolation)
 
-    @property
-    def friction(self) -> FrictionModel:
-        return FrictionModel.from_end_points(
-            self.friction_min_feed_mm_min, self.friction_max_feed_mm_min,
-            self.friction_at_min_feed_a, self.friction_at_max_feed_a)
-
-    @property
-    def current_map(self) -> CurrentForceMap:
-        return CurrentForceMap(self.current_offset_a, self.current_per_force_a_n)
 
 
 @dataclass(frozen=True)

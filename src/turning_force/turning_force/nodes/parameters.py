@@ -18,13 +18,39 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from turning_force.core.errors import ConfigError
+from turning_force.core.experiment import SETTINGS_OF
 from turning_force.core.settings import Settings, Spec
 
-__all__ = ['SettingsParameters', 'descriptor']
+__all__ = ['NODE_PARAMETERS', 'SettingsParameters', 'check_overrides', 'descriptor']
+
+# Parameters the nodes declare besides their settings classes' fields, and ROS's own.
+NODE_PARAMETERS = frozenset({
+    'publish_clock', 'output_dir', 'experiment_file', 'flush_period_s',   # ours
+    'use_sim_time', 'start_type_description_service',                     # rclpy's
+})
+
+
+def check_overrides(node: Node) -> None:
+    """Refuse to start with a parameter no node of the graph declares: a typo.
+
+    rclpy ignores values given for undeclared parameters, so ``overload_force_nn: 900`` in a
+    params file would silently leave the default limit in force. A name that another node
+    declares is fine (``/**`` gives every node the whole shared section).
+    """
+    # rclpy keeps the overrides only in this attribute; there is no public accessor.
+    overrides: dict[str, Any] = getattr(node, '_parameter_overrides', {})
+    known = set(NODE_PARAMETERS)
+    for kind in SETTINGS_OF.values():
+        known.update(kind.fields())
+    unknown = sorted(n for n in overrides if n not in known and not n.startswith('qos_overrides.'))
+    if unknown:
+        raise ConfigError(f'{node.get_fully_qualified_name()}: {", ".join(unknown)}: no node of '
+                          'turning_force declares such a parameter (a typo?)')
 
 S = TypeVar('S', bound=Settings)
 
@@ -65,13 +91,17 @@ class SettingsParameters(Generic[S]):
         fields = kind.fields()
         defaults = kind()
         self._names = list(fields)
-        for name, (scalar, spec) in fields.items():
-            array = kind._is_array(name)
-            default = getattr(defaults, name)
-            node.declare_parameter(
-                name, list(default) if array else default,
-                descriptor(name, scalar, spec, array))
         try:
+            for name, (scalar, spec) in fields.items():
+                array = kind._is_array(name)
+                default = getattr(defaults, name)
+                try:
+                    node.declare_parameter(name, list(default) if array else default,
+                                           descriptor(name, scalar, spec, array))
+                except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
+                    raise ConfigError(f'{node.get_fully_qualified_name()}: {kind.SECTION}.{name}'
+                                      f': {exc}') from exc
+            check_overrides(node)
             self.current: S = kind.from_params(self._values())
         except ConfigError as exc:
             node.get_logger().fatal(str(exc))

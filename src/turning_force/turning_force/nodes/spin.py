@@ -8,6 +8,7 @@ while the context is still valid, so that a recorder closes its session properly
 from __future__ import annotations
 
 import signal
+import sys
 from collections.abc import Callable, Sequence
 from types import FrameType
 
@@ -15,6 +16,8 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+
+from turning_force.core.errors import TurningForceError
 
 __all__ = ['run_nodes']
 
@@ -33,7 +36,11 @@ def run_nodes(make: Callable[[], list[Node]], args: Sequence[str] | None = None)
     nodes: list[Node] = []
     executor = SingleThreadedExecutor()
     try:
-        nodes = make()
+        try:
+            nodes = make()
+        except TurningForceError as exc:   # logged by the node; no traceback for bad input
+            print(f'turning_force: {exc}', file=sys.stderr)
+            return 2
         for node in nodes:
             executor.add_node(node)
         while not stop and rclpy.ok():
