@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import struct
 import subprocess
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Message
@@ -131,6 +133,20 @@ def test_report_is_a_png(fig8_session, tmp_path):
     assert header[:8] == b'\x89PNG\r\n\x1a\n'
     width, height = struct.unpack('>II', header[16:24])
     assert (width, height) == (1440, 1020)
+
+
+def test_a_session_from_the_machine_replays_with_its_experiment_file(fig8_session, tmp_path):
+    # A recorder started with ros2 run embeds the experiment file, not resolved parameters.
+    _, bag, _ = fig8_session
+    copy = tmp_path / 'fig8'
+    shutil.copytree(bag, copy)
+    metadata = yaml.safe_load((copy / 'metadata.yaml').read_text())
+    del metadata['rosbag2_bagfile_information']['custom_data'][CUSTOM_PARAMETERS]
+    (copy / 'metadata.yaml').write_text(yaml.safe_dump(metadata))
+    session = read_session(copy)
+    assert session.experiment is not None
+    assert 'recorded experiment' in session.experiment.source
+    assert replay(session).differing_overrides == 0
 
 
 def test_a_broken_session_is_named(tmp_path):

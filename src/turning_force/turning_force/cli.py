@@ -4,7 +4,8 @@
   graph on the simulator in lock-step, recorded to DIR (default ``bags/<name>_<time>``), with a
   figure beside it and the metrics printed. ``--core`` runs the ROS-free core loop instead
   (no session).
-- ``replay BAG [--set node.param=value ...] [--json]``: estimator, controller and quantiser
+- ``replay BAG [--experiment FILE] [--set node.param=value ...] [--json]``: estimator,
+  controller and quantiser
   re-run on the recorded currents; recorded and re-run side by side. ``--publish [--rate R]``
   plays the bag's sensor topics into a live graph instead.
 - ``report BAG [--out FILE.png]``: the paper-style figure and the metrics.
@@ -85,6 +86,8 @@ def _replay(args: argparse.Namespace) -> int:
     from turning_force.session.run import print_progress
 
     session = read_session(args.bag)
+    if args.experiment:
+        session.experiment = load_experiment(args.experiment)
     result = replay(session, args.set, None if args.json else print_progress)
     comparison = {'max_force_difference_n': result.max_force_difference_n,
                   'max_request_difference_pct': result.max_request_difference_pct,
@@ -151,6 +154,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     rep = commands.add_parser('replay', help='re-run estimator and controller on a session')
     rep.add_argument('bag', help='session folder (rosbag2, MCAP)')
+    rep.add_argument('--experiment', help='settings to start from, for a session that embeds '
+                     'none (default: the recorded ones)')
     add_set(rep)
     rep.add_argument('--json', action='store_true', help='print one JSON object')
     rep.add_argument('--publish', action='store_true',

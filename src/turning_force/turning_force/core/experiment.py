@@ -32,7 +32,14 @@ from turning_force.core.plant import PlantSettings
 from turning_force.core.pmc import BridgeSettings
 from turning_force.core.settings import Settings, setting
 
-__all__ = ['Experiment', 'RunSettings', 'build_experiment', 'load_experiment', 'parse_set']
+__all__ = [
+    'Experiment',
+    'RunSettings',
+    'build_experiment',
+    'load_experiment',
+    'parse_experiment',
+    'parse_set',
+]
 
 SHARED = '/**'
 _T = TypeVar('_T')
@@ -120,9 +127,16 @@ def load_experiment(path: str | Path) -> Experiment:
     """Read and validate an experiment parameters file."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        text = path.read_text()
     except OSError as exc:
         raise ConfigError(f'{path}: cannot read: {exc.strerror}') from exc
+    return parse_experiment(text, str(path))
+
+
+def parse_experiment(text: str, path: str) -> Experiment:
+    """Validate an experiment parameters file's text; errors name ``path``."""
+    try:
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f'{path}: not valid YAML: {exc}') from exc
     if not isinstance(data, dict):
@@ -138,7 +152,7 @@ def load_experiment(path: str | Path) -> Experiment:
             raise ConfigError(f'{path}: {node}: unknown node; known: {known}')
         sections.setdefault(name, {}).update(params)
     try:
-        return build_experiment(str(path), sections)
+        return build_experiment(path, sections)
     except ConfigError as exc:
         raise ConfigError(f'{path}: {exc}') from exc
 

@@ -22,9 +22,10 @@ from rosbags.rosbag2 import ReaderError
 
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import ConfigError
-from turning_force.core.experiment import Experiment, build_experiment
+from turning_force.core.experiment import Experiment, build_experiment, parse_experiment
 from turning_force.core.metrics import compute_metrics
 from turning_force.session.bag import (
+    CUSTOM_EXPERIMENT,
     CUSTOM_PARAMETERS,
     CUSTOM_VERSIONS,
     BagError,
@@ -96,12 +97,16 @@ def _custom_data(path: Path) -> dict[str, str]:
 
 
 def _experiment(path: Path, custom: dict[str, str]) -> Experiment | None:
+    """The run's settings: the resolved parameters a lock-step run embeds, else the experiment
+    file a recorder on the machine embeds (its parameters as the file gives them)."""
     try:
         if CUSTOM_PARAMETERS in custom:
             return build_experiment(f'{path} (recorded parameters)',
                                     json.loads(custom[CUSTOM_PARAMETERS]))
+        if CUSTOM_EXPERIMENT in custom:
+            return parse_experiment(custom[CUSTOM_EXPERIMENT], f'{path} (recorded experiment)')
     except (ValueError, ConfigError) as exc:
-        raise BagError(f'{path}: the recorded parameters are not a valid experiment: {exc}') \
+        raise BagError(f'{path}: the recorded settings are not a valid experiment: {exc}') \
             from exc
     return None
 
