@@ -23,7 +23,7 @@ from turning_force_msgs.msg import ForceEstimate, ServoCurrents
 ROOT = Path(__file__).resolve().parents[2]
 VENV = Path(sys.prefix)
 EXECUTABLES = ['lathe_sim', 'force_estimator', 'force_controller', 'pmc_bridge',
-               'session_recorder', 'turning_force_graph']  # every node entry point
+               'session_recorder', 'turning_force_graph', 'turning_force_machine']
 
 
 @pytest.fixture(scope='module')

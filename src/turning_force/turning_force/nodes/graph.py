@@ -1,8 +1,11 @@
-"""The whole graph in one process: ``ros2 run turning_force turning_force_graph``.
+"""The graph in one process, real time, wall clock, all nodes reading the ``--params-file``:
 
-Real time, wall clock: the simulator, estimator, controller, PMC bridge and recorder on one
-executor, all reading the ``--params-file`` given. (``turning-force run`` composes the same nodes
-in lock-step instead: :mod:`turning_force.session.run`.)
+- ``ros2 run turning_force turning_force_graph``: simulator, estimator, controller, PMC bridge
+  and recorder, for a desk.
+- ``ros2 run turning_force turning_force_machine``: the same without the simulator, for the
+  machine PC, where the DAQ driver publishes ``servo/currents``.
+
+(``turning-force run`` composes the nodes in lock-step instead: :mod:`turning_force.session.run`.)
 """
 
 from __future__ import annotations
@@ -19,16 +22,19 @@ from turning_force.nodes.pmc_bridge import PmcBridgeNode
 from turning_force.nodes.session_recorder import SessionRecorderNode
 from turning_force.nodes.spin import run_nodes
 
-__all__ = ['main']
+__all__ = ['machine_main', 'main']
 
 
-def _graph() -> list[Node]:
-    return [LatheSimNode(), ForceEstimatorNode(), ForceControllerNode(), PmcBridgeNode(),
-            SessionRecorderNode()]
+def _machine() -> list[Node]:
+    return [ForceEstimatorNode(), ForceControllerNode(), PmcBridgeNode(), SessionRecorderNode()]
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    return run_nodes(_graph, args)
+    return run_nodes(lambda: [LatheSimNode(), *_machine()], args)
+
+
+def machine_main(args: Sequence[str] | None = None) -> int:
+    return run_nodes(_machine, args)
 
 
 if __name__ == '__main__':

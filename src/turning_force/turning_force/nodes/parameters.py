@@ -31,6 +31,7 @@ __all__ = ['NODE_PARAMETERS', 'SettingsParameters', 'check_overrides', 'descript
 # Parameters the nodes declare besides their settings classes' fields, and ROS's own.
 NODE_PARAMETERS = frozenset({
     'publish_clock', 'output_dir', 'experiment_file', 'flush_period_s',   # ours
+    'capture_parameters',
     'use_sim_time', 'start_type_description_service',                     # rclpy's
 })
 

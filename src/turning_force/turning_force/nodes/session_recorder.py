@@ -4,14 +4,16 @@ Subscribes, without deserialising, to every topic of the graph (``servo/currents
 ``servo/joint_state``, ``sim/cutting_state``, ``force/estimate``, ``force/reference``,
 ``control/feed_command``, ``pmc/feed_override``, ``/diagnostics``) and writes them to
 ``output_dir`` as they come, stamped with this node's clock (sim time in lock-step). Embeds the
-experiment file (``experiment_file``), the software versions, and the resolved parameters its
-owner passes (:meth:`SessionRecorderNode.add_custom_data`). A killed recorder loses at most
-``flush_period_s`` of data.
+experiment file (``experiment_file``), the software versions, and the resolved parameters: its
+owner passes them (:meth:`SessionRecorderNode.add_custom_data`, as ``turning-force run`` does),
+or with ``capture_parameters`` it asks the graph's nodes for theirs over their parameter
+services, as on the machine PC. A killed recorder loses at most ``flush_period_s`` of data.
 """
 
 from __future__ import annotations
 
 import datetime
+import functools
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,6 +22,8 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
+from rclpy.parameter import parameter_value_to_python
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -31,11 +35,13 @@ from turning_force_msgs.msg import (
     ServoCurrents,
 )
 
+from turning_force.core.experiment import SETTINGS_OF
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.spin import run_nodes
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
+    CUSTOM_PARAMETERS,
     CUSTOM_VERSIONS,
     SessionWriter,
     dumps,
@@ -73,6 +79,9 @@ class SessionRecorderNode(Node):
             description='Experiment parameters file to embed in the session', read_only=True))
         self.declare_parameter('flush_period_s', 1.0, ParameterDescriptor(
             description='Longest wall time between writes to the disk [s]', read_only=True))
+        self.declare_parameter('capture_parameters', True, ParameterDescriptor(
+            description='Ask the graph nodes for their parameters and embed them',
+            read_only=True))
         path = Path(self.get_parameter('output_dir').value)
         self.writer = SessionWriter(path, float(self.get_parameter('flush_period_s').value))
         self.writer.set_custom_data(CUSTOM_VERSIONS, dumps(software_versions()))
@@ -86,7 +95,37 @@ class SessionRecorderNode(Node):
             self.writer.add_topic(name, msgtype(cls))
             qos = REFERENCE_QOS if topic == 'force/reference' else QoSProfile(depth=100)
             self.create_subscription(cls, topic, self._callback(name), qos, raw=True)
+        self._captured: dict[str, dict[str, Any]] = {}
+        self._asking: set[str] = set()
+        self._parameter_clients: dict[str, AsyncParameterClient] = {}
+        self._parameters_given = False
+        if self.get_parameter('capture_parameters').value:
+            self.create_timer(1.0, self._capture_parameters)
         self.get_logger().info(f'recording to {path}')
+
+    def _capture_parameters(self) -> None:
+        """Ask each graph node not yet heard from for its parameters (once it is up)."""
+        for name, kind in SETTINGS_OF.items():
+            if name == 'experiment' or name in self._captured or name in self._asking:
+                continue
+            client = self._parameter_clients.get(name)
+            if client is None:
+                remote = f'{self.get_namespace().rstrip("/")}/{name}'
+                client = self._parameter_clients[name] = AsyncParameterClient(self, remote)
+            if not client.services_are_ready():
+                continue
+            self._asking.add(name)
+            names = list(kind.fields())
+            future = client.get_parameters(names)
+            future.add_done_callback(functools.partial(self._on_parameters, name, names))
+
+    def _on_parameters(self, node: str, names: list[str], future: Any) -> None:
+        self._asking.discard(node)
+        response = future.result()
+        if response is None or len(response.values) != len(names):
+            return
+        self._captured[node] = {n: parameter_value_to_python(v)
+                                for n, v in zip(names, response.values, strict=True)}
 
     def _callback(self, name: str) -> Any:
         def record(data: bytes) -> None:
@@ -97,11 +136,14 @@ class SessionRecorderNode(Node):
 
     def add_custom_data(self, key: str, value: str) -> None:
         self.writer.set_custom_data(key, value)
+        self._parameters_given |= key == CUSTOM_PARAMETERS
 
     def close(self) -> None:
         """Finish the session (summary, index, metadata.yaml). Idempotent."""
         if not self._closed:
             self._closed = True
+            if self._captured and not self._parameters_given:
+                self.writer.set_custom_data(CUSTOM_PARAMETERS, dumps(self._captured))
             self.writer.close()
             self.get_logger().info(f'session closed: {self.writer.path}')
 

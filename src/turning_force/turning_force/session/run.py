@@ -91,7 +91,8 @@ def run_lockstep(experiment: Experiment, out_dir: Path,
         sim = LatheSimNode(lockstep=True, context=context, parameter_overrides=_overrides(
             resolved['lathe_sim'], publish_clock=True))
         recorder = SessionRecorderNode(context=context, parameter_overrides=_overrides(
-            {}, output_dir=str(out_dir), experiment_file=experiment.source))
+            {}, output_dir=str(out_dir), experiment_file=experiment.source,
+            capture_parameters=False))
         recorder.add_custom_data(CUSTOM_PARAMETERS, dumps(resolved))
         bridge = PmcBridgeNode(context=context, parameter_overrides=_overrides(
             resolved['pmc_bridge'], armed=True))
