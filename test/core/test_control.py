@@ -10,6 +10,7 @@ from turning_force.core.control import (
     AdaptiveSlidingModeController,
     ControllerSettings,
     PIController,
+    PolePlacementAdaptiveController,
     SlidingModeController,
     make_controller,
 )
@@ -164,7 +165,7 @@ def test_pi_anti_windup_leaves_saturation_at_once():
     assert controller.update(600.0, 0.0).override_pct < 150.0
 
 
-@pytest.mark.parametrize('name', ['smc', 'adaptive', 'adaptive_smc', 'pi'])
+@pytest.mark.parametrize('name', ['smc', 'adaptive', 'adaptive_smc', 'adaptive_pp', 'pi'])
 def test_controllers_are_chosen_by_name(name):
     controller = make_controller(ControllerSettings(controller=name))
     assert controller.name == name
@@ -178,3 +179,35 @@ def test_retune_takes_the_new_reference_at_the_next_update():
     after = controller.update(500.0, 0.0)
     assert before.error_n == 0.0 and after.error_n == 100.0
     assert after.override_pct < before.override_pct
+
+
+def test_pole_placement_design_puts_the_poles_where_asked():
+    # With the model known, A (1 - q^-1) R + B S must equal A_m: the closed loop's poles are
+    # those of a 6 rad/s, 0.9 damping loop sampled at 10 ms (two more at the origin).
+    c = ControllerSettings(controller='adaptive_pp', override_table='ideal')
+    controller = PolePlacementAdaptiveController(c)
+    a1, a2, b0, b1 = controller.theta
+    r1, s = controller._design()
+    closed = np.polymul(np.polymul([1, a1, a2], [1, -1]), [1, r1])
+    closed = np.polyadd(closed, np.polymul([0, b0, b1], s))
+    wd = 6.0 * math.sqrt(1 - 0.81)
+    m1 = -2 * math.exp(-0.9 * 6.0 * 0.01) * math.cos(wd * 0.01)
+    m2 = math.exp(-2 * 0.9 * 6.0 * 0.01)
+    np.testing.assert_allclose(closed, [1, m1, m2, 0, 0], atol=1e-12)
+
+
+def test_pole_placement_adaptive_settles_on_the_reference():
+    # A second-order ARMA plant far from the initial guess (gain 13 N/% against 8): the
+    # integral action gives zero steady error, and the RLS finds the static gain.
+    true = np.array([-1.7, 0.75, 0.4, 0.25])   # a1, a2, b0, b1: gain 0.65 / 0.05 = 13 N/%
+    c = ControllerSettings(controller='adaptive_pp', override_table='ideal',
+                           reference_force_n=500.0)
+    controller = PolePlacementAdaptiveController(c)
+    y, u = [0.0, 0.0], [100.0, 100.0]
+    for _ in range(1500):
+        force = -true[0] * y[0] - true[1] * y[1] + true[2] * u[0] + true[3] * u[1]
+        pct = controller.update(force, 0.0).override_pct
+        y, u = [force, y[0]], [pct, u[0]]
+    assert y[0] == pytest.approx(500.0, abs=0.5)
+    a1, a2, b0, b1 = controller.theta
+    assert (b0 + b1) / (1 + a1 + a2) == pytest.approx(13.0, rel=0.05)

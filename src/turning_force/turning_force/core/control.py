@@ -10,6 +10,9 @@ feed, inside the override table's range. The PMC's quantisation happens after it
   controller whose gain follows an on-line estimate of the process gain (Masory & Koren 1980).
 - ``adaptive_smc``: discrete adaptive sliding mode control with a variable forgetting factor
   (Hwang & Chen 1990, Eqs. 11-39, Remarks 1-2).
+- ``adaptive_pp``: Kim's adaptive controller: recursive least squares on an ARMA model (Kim
+  Eq. 12) with dead zone and covariance resetting, and a pole-placement controller with
+  integral action (a servo-compensator, Kim Eqs. 16-18) redesigned every period.
 - ``pi``: fixed-gain PI with anti-windup, what commercial adaptive-feed options run.
 """
 
@@ -34,6 +37,7 @@ __all__ = [
     'Controller',
     'ControllerSettings',
     'PIController',
+    'PolePlacementAdaptiveController',
     'SlidingModeController',
     'make_controller',
 ]
@@ -48,7 +52,7 @@ class ControllerSettings(Settings):
     SECTION = 'force_controller'
 
     controller: str = setting('smc', 'Control law', choices=('smc', 'adaptive', 'adaptive_smc',
-                                                             'pi'))
+                                                             'adaptive_pp', 'pi'))
     reference_force_n: float = setting(500.0, 'Reference cutting force F_ref', 'N', low=0.0,
                                        low_open=True, high=1e5, dynamic=True)
     control_period_s: float = setting(0.01, 'Control period (Park: 10 ms)', 's', low=1e-4,
@@ -104,6 +108,19 @@ class ControllerSettings(Settings):
                                 low_open=True)
     asmc_freeze_limit: float = setting(1e3, 'Remark 2: hold u when |A(1)/B(1)| reaches this',
                                        'mm/s per N', low=0.0, low_open=True)
+    pp_natural_freq_rad_s: float = setting(6.0, 'Closed-loop natural frequency the pole '
+                                           'placement assigns', 'rad/s', low=0.0, low_open=True,
+                                           dynamic=True)
+    pp_damping: float = setting(0.9, 'Closed-loop damping the pole placement assigns', low=0.0,
+                                low_open=True, high=5.0, dynamic=True)
+    pp_gain0_n_per_pct: float = setting(8.0, 'Process gain the identification starts from',
+                                        'N/%', low=0.0, low_open=True)
+    pp_dead_zone_n: float = setting(2.0, 'Prediction errors below this do not update the model '
+                                    '(dead zone)', 'N', low=0.0)
+    pp_p0: float = setting(100.0, 'Covariance the RLS starts from and is reset to', low=0.0,
+                           low_open=True)
+    pp_reset_trace: float = setting(1e-2, 'Covariance resetting: when trace(P) falls below '
+                                    'this, P is reset to p0 I', low=0.0)
     pi_kp_pct_per_n: float = setting(0.02, 'PI proportional gain', '%/N', low=0.0, dynamic=True)
     pi_ki_pct_per_n_s: float = setting(0.2, 'PI integral gain', '%/(N s)', low=0.0, dynamic=True)
 
@@ -365,6 +382,110 @@ class AdaptiveSlidingModeController(Controller):
         return float(u0 - (d @ a_mat @ x) / (d @ b_vec))  # Eqs. 27-29
 
 
+class PolePlacementAdaptiveController(Controller):
+    """Kim's adaptive cutting-force controller, as a self-tuning pole-placement regulator.
+
+    Model (Kim Eq. 12): ``A(q) F = B(q) u`` with ``A = 1 + a1 q^-1 + a2 q^-2``,
+    ``B = b0 q^-1 + b1 q^-2``, ``u`` the override [%]. Every period:
+
+    1. RLS (Kim Eq. 15, Goodwin & Sin) updates ``[a1, a2, b0, b1]``, skipped inside a dead zone
+       of prediction error, with ``P`` reset to ``p0 I`` when its trace has run down, and
+       projected on a positive static gain ``B(1) / A(1)``.
+    2. A servo-compensator (integral action, Kim Eq. 16) and pole placement: ``R``, ``S`` from
+       ``A (1 - q^-1) R + B S = A_m``, where ``A_m`` has the poles of a second-order loop of
+       natural frequency ``pp_natural_freq_rad_s`` and damping ``pp_damping`` (two more at the
+       origin). The law ``R (1 - q^-1) u = S(1) F_ref - S F`` holds ``F = F_ref`` at rest
+       whatever the model's error.
+
+    Kim places the poles by eigenstructure assignment on a state-space form (Eqs. 17-24); the
+    polynomial form here gives the same closed-loop poles for this second-order model.
+
+    Kim used it with an eight-bit override. Through the four-bit one the RLS fits the quantised
+    response to the continuous request, the model goes wrong and the loop limit-cycles between
+    0 and 150 % (``turning-force reproduce``): Park's case against adaptive control, measured.
+    """
+
+    name = 'adaptive_pp'
+
+    def reset(self) -> None:
+        c = self.settings
+        dt = c.control_period_s
+        p1 = math.exp(-dt / c.model_servo_time_constant_s)
+        p2 = math.exp(-dt / c.model_cutting_time_constant_s)
+        a1, a2 = -(p1 + p2), p1 * p2
+        b = c.pp_gain0_n_per_pct * (1 + a1 + a2) / 2
+        self.theta = np.array([a1, a2, b, b])
+        self._p = c.pp_p0 * np.eye(4)
+        u0 = self._clip(c.initial_override_pct)
+        self._y = [math.nan, math.nan]   # F(k-1), F(k-2)
+        self._u = [u0, u0]               # u(k-1), u(k-2)
+        self._du = 0.0                   # u(k-1) - u(k-2)
+
+    def _identify(self, y: float) -> None:
+        c = self.settings
+        phi = np.array([-self._y[0], -self._y[1], self._u[0], self._u[1]])
+        error = y - phi @ self.theta
+        if abs(error) <= c.pp_dead_zone_n:
+            return
+        p_phi = self._p @ phi
+        gain = p_phi / (1.0 + phi @ p_phi)
+        theta = self.theta + gain * error
+        # Projection on what is known of the process: more feed, more force. An estimate with
+        # B(1) <= 0 (a transient with the feed held, read as a gain of the wrong sign) would
+        # turn the loop around; it is refused.
+        if theta[2] + theta[3] <= 0.0 or 1.0 + theta[0] + theta[1] <= 0.0:
+            return
+        self.theta = theta
+        self._p = self._p - np.outer(gain, p_phi)
+        if np.trace(self._p) < c.pp_reset_trace:
+            self._p = c.pp_p0 * np.eye(4)
+
+    def _design(self) -> tuple[float, FloatArray] | None:
+        """(r1, [s0, s1, s2]) solving the Diophantine equation, or None if singular."""
+        c = self.settings
+        a1, a2, b0, b1 = self.theta
+        w, z, dt = c.pp_natural_freq_rad_s, c.pp_damping, c.control_period_s
+        if z < 1.0:
+            wd = w * math.sqrt(1.0 - z * z)
+            m1 = -2.0 * math.exp(-z * w * dt) * math.cos(wd * dt)
+        else:
+            wd = w * math.sqrt(z * z - 1.0)
+            m1 = -2.0 * math.exp(-z * w * dt) * math.cosh(wd * dt)
+        m2 = math.exp(-2.0 * z * w * dt)
+        # Coefficients of q^-1..q^-4 of A (1 - q^-1) (1 + r1 q^-1) + B (s0 + s1 q^-1 + s2 q^-2).
+        matrix = np.array([
+            [1.0, b0, 0.0, 0.0],
+            [a1 - 1.0, b1, b0, 0.0],
+            [a2 - a1, 0.0, b1, b0],
+            [-a2, 0.0, 0.0, b1],
+        ])
+        rhs = np.array([m1 - (a1 - 1.0), m2 - (a2 - a1), a2, 0.0])
+        try:
+            r1, *s = np.linalg.solve(matrix, rhs)
+        except np.linalg.LinAlgError:
+            return None
+        return float(r1), np.array(s)
+
+    def update(self, force_n: float, force_rate_n_s: float) -> ControlOutput:
+        c = self.settings
+        y = force_n
+        if not math.isnan(self._y[1]):
+            self._identify(y)
+        design = self._design()
+        error = y - c.reference_force_n
+        if design is None or math.isnan(self._y[1]):
+            u = self._u[0]   # no model yet, or a singular one: hold the feed
+        else:
+            r1, s = design
+            history = [y, self._y[0], self._y[1]]
+            du = -r1 * self._du + s.sum() * c.reference_force_n - float(s @ history)
+            u = self._clip(self._u[0] + du)
+        self._du = u - self._u[0]
+        self._y = [y, self._y[0]]
+        self._u = [u, self._u[0]]
+        return ControlOutput(u, error, 0.0)
+
+
 class PIController(Controller):
     """Fixed-gain PI on the override with anti-windup by clamping the integral.
 
@@ -391,7 +512,7 @@ class PIController(Controller):
 CONTROLLERS: Mapping[str, Callable[[ControllerSettings], Controller]] = {
     cls.name: cls
     for cls in (SlidingModeController, AdaptiveController, AdaptiveSlidingModeController,
-                PIController)
+                PolePlacementAdaptiveController, PIController)
 }
 
 
