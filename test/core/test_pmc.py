@@ -88,3 +88,17 @@ def test_bad_bridge_settings():
         BridgeSettings(safe_override_pct=200.0)
     with pytest.raises(ConfigError, match=r'pmc_bridge.watchdog_period_s = 0.005: shorter'):
         BridgeSettings(watchdog_period_s=0.005)
+
+
+def test_the_core_loop_runs_through_the_gate(experiments_dir):
+    # Fig. 8's first depth step peaks at about 760 N; with a 700 N overload limit the feed is
+    # held from then on and the force dies away, as the graph's bridge would do it.
+    from turning_force.core.experiment import load_experiment
+    from turning_force.core.simulate import simulate
+
+    experiment = load_experiment(experiments_dir / 'park1998_fig8.yaml').with_sets(
+        ['pmc_bridge.overload_force_n=700.0', 'experiment.duration_s=6.0'])
+    trace = simulate(experiment).trace
+    held = trace['applied_override_pct'][trace['t_s'] > 4.3]
+    assert held.max() == 0.0
+    assert trace['force_n'][-1] < 1.0

@@ -1,8 +1,9 @@
-"""The closed loop in one function, no ROS: plant -> estimator -> controller -> quantiser.
+"""The closed loop in one function, no ROS: plant -> estimator -> controller -> PMC gate.
 
 Each control period the plant delivers one block of currents at the override the PMC applied in
-the period before; the estimator and controller run on it; the quantised request is applied for
-the next block. That one-period delay is the same the node graph has.
+the period before; the estimator and controller run on it; the armed override gate (quantiser,
+overload hold) decides what is applied for the next block. That one-period delay and that gate
+are the same the node graph has, so both give the same numbers.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from turning_force.core.experiment import Experiment
 from turning_force.core.metrics import compute_metrics
 from turning_force.core.overrides import get_table
 from turning_force.core.plant import LathePlant
+from turning_force.core.pmc import OverrideGate
 
 __all__ = ['SimulationResult', 'simulate']
 
@@ -51,6 +53,7 @@ def simulate(experiment: Experiment) -> SimulationResult:
     wall_start = time.perf_counter()
     table = get_table(experiment.bridge.override_table)
     controller = make_controller(experiment.controller)
+    gate = OverrideGate(experiment.bridge.replace(armed=True), t_s=0.0)
     applied = table.quantise(experiment.controller.initial_override_pct)
     plant = LathePlant(experiment.plant, initial_override_pct=applied)
     estimator = ForceEstimator(experiment.estimator)
@@ -61,13 +64,16 @@ def simulate(experiment: Experiment) -> SimulationResult:
         block = plant.step(applied)
         estimate = estimator.update(block.currents)
         out = controller.update(estimate.force_n, estimate.force_rate_n_s)
+        t_end = block.currents.t0_s + len(block.currents) * block.currents.sample_period_s
         rows[k] = (
-            block.currents.t0_s + len(block.currents) * block.currents.sample_period_s,
+            t_end,
             block.force_n[-1], estimate.force_n, estimate.force_rate_n_s, reference,
             block.depth_mm[-1], block.feed_mm_rev[-1], out.override_pct, applied,
             out.sliding_variable,
         )
-        applied = table.quantise(out.override_pct)
+        gate.on_force(estimate.force_n)
+        gate.on_command(out.override_pct, t_end)
+        applied = gate.decide(t_end).applied_pct
     trace = {name: rows[:, i].copy() for i, name in enumerate(TRACE_NAMES)}
     metrics = compute_metrics(
         trace['t_s'], trace['force_n'], trace['reference_n'], trace['depth_mm'],

@@ -44,16 +44,18 @@ class RunError(TurningForceError):
 
 @dataclass(frozen=True)
 class RunOutcome:
+    """What a lock-step run did: the session, how many steps, how fast."""
+
     bag: Path
     steps: int
+    sim_s: float
     wall_s: float
     executor: str
 
     @property
     def realtime_factor(self) -> float:
+        """Simulated seconds per wall second (the graph's steps only, not its start-up)."""
         return 0.0 if self.wall_s <= 0 else self.sim_s / self.wall_s
-
-    sim_s: float = 0.0
 
 
 def _executor(context: Context, kind: str) -> Any:
@@ -128,8 +130,8 @@ def run_lockstep(experiment: Experiment, out_dir: Path,
             executor.spin_once(timeout_sec=0.1)
         wall = time.perf_counter() - start
         recorder.close()
-        return RunOutcome(out_dir, steps, wall, type(executor).__name__,
-                          sim_s=steps * experiment.run.control_period_s)
+        return RunOutcome(out_dir, steps, steps * experiment.run.control_period_s, wall,
+                          type(executor).__name__)
     finally:
         for node in nodes:
             executor.remove_node(node)
