@@ -31,6 +31,7 @@ from turning_force.session.bag import (
     CUSTOM_PARAMETERS,
     CUSTOM_VERSIONS,
     BagError,
+    SessionWriter,
     typestore,
 )
 from turning_force.session.reader import read_session, recorded_metrics
@@ -147,6 +148,39 @@ def test_a_session_from_the_machine_replays_with_its_experiment_file(fig8_sessio
     assert session.experiment is not None
     assert 'recorded experiment' in session.experiment.source
     assert replay(session).differing_overrides == 0
+
+
+def copy_without(bag: Path, out: Path, dropped: str) -> None:
+    """A copy of a session without one topic (here: what a machine does not have)."""
+    custom = yaml.safe_load((bag / 'metadata.yaml').read_text())[
+        'rosbag2_bagfile_information']['custom_data']
+    writer = SessionWriter(out)
+    for key, value in custom.items():
+        writer.set_custom_data(key, value)
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        kept = [c for c in reader.connections if c.topic != dropped]
+        for connection in kept:
+            writer.add_topic(connection.topic, connection.msgtype)
+        for connection, timestamp, raw in reader.messages(connections=kept):
+            writer.write(connection.topic, timestamp, bytes(raw))
+    writer.close()
+
+
+def test_a_machine_session_is_measured_on_the_estimated_force(fig8_session, tmp_path):
+    # No simulator truth on a lathe: metrics and figure come from the estimated force. Over
+    # fig8 the estimate is within a few newtons of the truth, so the metrics are close to it.
+    _, bag, _ = fig8_session
+    machine = tmp_path / 'machine'
+    copy_without(bag, machine, '/sim/cutting_state')
+    session = read_session(machine)
+    assert not session.has_truth
+    truth = recorded_metrics(read_session(bag))
+    estimated = recorded_metrics(session)
+    assert estimated['steady_mean_abs_error_n'] == pytest.approx(
+        truth['steady_mean_abs_error_n'], abs=1.0)
+    assert estimated['override_changes_per_s'] == pytest.approx(
+        truth['override_changes_per_s'], rel=0.01)
+    assert write_report(session, estimated, tmp_path / 'machine.png').stat().st_size > 50_000
 
 
 def test_a_broken_session_is_named(tmp_path):

@@ -32,7 +32,7 @@ from turning_force.session.bag import (
     typestore,
 )
 
-__all__ = ['Session', 'read_session', 'recorded_metrics']
+__all__ = ['Session', 'estimate_metrics', 'read_session', 'recorded_metrics']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -64,24 +64,25 @@ class Session:
         return dict(json.loads(self.custom_data.get(CUSTOM_VERSIONS, '{}')))
 
 
+ANSWERS = ('force/estimate', 'control/feed_command', 'pmc/feed_override', 'sim/cutting_state')
+READ = ('servo/currents', *ANSWERS)
+
+
 def _topic(name: str) -> str:
     """The relative topic name: strip any namespace in front of the graph's names."""
-    for relative in ('servo/currents', 'servo/joint_state', 'sim/cutting_state',
-                     'force/estimate', 'force/reference', 'control/feed_command',
-                     'pmc/feed_override'):
+    for relative in READ:
         if name.endswith('/' + relative) or name == relative:
             return relative
     return name
 
 
 def _messages(path: Path) -> Iterator[tuple[str, Any]]:
+    """The messages of the topics the session's signals come from, deserialised."""
     try:
         with AnyReader([path], default_typestore=typestore()) as reader:
-            for connection, _, raw in reader.messages():
-                topic = _topic(connection.topic)
-                if topic == '/diagnostics':
-                    continue
-                yield topic, reader.deserialize(raw, connection.msgtype)
+            wanted = [c for c in reader.connections if _topic(c.topic) in READ]
+            for connection, _, raw in reader.messages(connections=wanted):
+                yield _topic(connection.topic), reader.deserialize(raw, connection.msgtype)
     except (AnyReaderError, ReaderError, OSError) as exc:
         raise BagError(f'{path}: cannot read the session: {exc}') from exc
 
@@ -118,26 +119,24 @@ def read_session(path: str | Path) -> Session:
         raise BagError(f'{path}: not a rosbag2 folder (no metadata.yaml); an MCAP file of a '
                        'killed recording can be read with the mcap reader')
     custom = _custom_data(path)
-    blocks: list[CurrentBlock] = []
-    answers: dict[str, dict[int, Any]] = {'force/estimate': {}, 'control/feed_command': {},
-                                          'pmc/feed_override': {}, 'sim/cutting_state': {}}
-    stamps_of: dict[int, int] = {}   # id(block) -> stamp of its last sample [ns]
+    received: list[tuple[int, CurrentBlock]] = []   # (stamp of the last sample [ns], block)
+    answers: dict[str, dict[int, Any]] = {topic: {} for topic in ANSWERS}
     for topic, msg in _messages(path):
         if topic == 'servo/currents':
-            stamp = _ns(msg.header.stamp)
-            blocks.append(CurrentBlock(
-                _ns(msg.header.stamp) * 1e-9, float(msg.sample_period_s),
-                np.asarray(msg.phase_u_a, dtype=float), np.asarray(msg.phase_v_a, dtype=float),
+            stamp, period = _ns(msg.header.stamp), float(msg.sample_period_s)
+            block = CurrentBlock(
+                stamp * 1e-9, period, np.asarray(msg.phase_u_a, dtype=float),
+                np.asarray(msg.phase_v_a, dtype=float),
                 np.asarray(msg.rotor_angle_rad, dtype=float),
-                np.asarray(msg.feed_rate_mm_min, dtype=float)))
-            stamps_of[id(blocks[-1])] = stamp + round((len(msg.phase_u_a) - 1)
-                                                      * float(msg.sample_period_s) * 1e9)
-        elif topic in answers:
+                np.asarray(msg.feed_rate_mm_min, dtype=float))
+            received.append((stamp + round((len(block) - 1) * period * 1e9), block))
+        else:
             answers[topic].setdefault(_ns(msg.header.stamp), msg)
-    if not blocks:
+    if not received:
         raise BagError(f'{path}: no servo/currents in the session')
-    blocks.sort(key=lambda b: b.t0_s)
-    stamps = np.array([stamps_of[id(b)] for b in blocks], dtype=np.int64)
+    received.sort(key=lambda pair: pair[0])
+    blocks = [block for _, block in received]
+    stamps = np.array([stamp for stamp, _ in received], dtype=np.int64)
     t_end = np.array([b.t0_s + len(b) * b.sample_period_s for b in blocks])
 
     def column(topic: str, attribute: str) -> FloatArray:
@@ -163,17 +162,39 @@ def read_session(path: str | Path) -> Session:
                    has_truth=bool(answers['sim/cutting_state']))
 
 
+def estimate_metrics(session: Session, experiment: Experiment, force_n: FloatArray,
+                     answered_pct: FloatArray,
+                     reference_n: FloatArray | None = None) -> dict[str, float]:
+    """The DESIGN.md metrics on an estimated force: for a machine's session (no truth) and for
+    replays, whose new commands never reached a plant.
+
+    ``answered_pct`` is the override answering each block; a block ran at the answer to the one
+    before. The tool counts as engaged where the session has no depth.
+    """
+    reference = (np.full_like(force_n, experiment.controller.reference_force_n)
+                 if reference_n is None else reference_n)
+    depth = session.signals['depth_mm'] if session.has_truth else np.ones_like(force_n)
+    applied = np.concatenate([[experiment.controller.initial_override_pct], answered_pct[:-1]])
+    keep = ~np.isnan(force_n)
+    return compute_metrics(
+        session.t_s[keep], force_n[keep], reference[keep], depth[keep],
+        np.nan_to_num(applied[keep], nan=0.0), experiment.plant.depth_profile.change_times_s(),
+        experiment.metric_settings)
+
+
 def recorded_metrics(session: Session) -> dict[str, float]:
-    """The DESIGN.md metrics of a simulated session, from its ground truth."""
-    if not session.has_truth or session.experiment is None:
-        raise BagError(f'{session.path}: no simulator truth or experiment: the true-force '
-                       'metrics need both')
+    """The DESIGN.md metrics of a session: on the simulator's true force and depth where the
+    session has them, else (a machine's session) on the estimated force."""
+    if session.experiment is None:
+        raise BagError(f'{session.path}: no recorded parameters or experiment file: the metrics '
+                       'need the settle window and the allowed error')
+    experiment = session.experiment
     s = session.signals
-    reference = s['reference_n'].copy()
-    missing = np.isnan(reference)
-    reference[missing] = session.experiment.controller.reference_force_n
+    reference = np.where(np.isnan(s['reference_n']), experiment.controller.reference_force_n,
+                         s['reference_n'])
+    if not session.has_truth:
+        return estimate_metrics(session, experiment, s['estimated_force_n'],
+                                s['answered_override_pct'], reference)
     return compute_metrics(
         session.t_s, s['force_n'], reference, s['depth_mm'], s['applied_override_pct'],
-        session.experiment.plant.depth_profile.change_times_s(),
-        session.experiment.metric_settings)
-
+        experiment.plant.depth_profile.change_times_s(), experiment.metric_settings)

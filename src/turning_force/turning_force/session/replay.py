@@ -19,10 +19,9 @@ import numpy.typing as npt
 from turning_force.core.control import make_controller
 from turning_force.core.estimation import EstimateStatus, ForceEstimator
 from turning_force.core.experiment import Experiment
-from turning_force.core.metrics import compute_metrics
 from turning_force.core.overrides import get_table
 from turning_force.session.bag import BagError
-from turning_force.session.reader import Session
+from turning_force.session.reader import Session, estimate_metrics
 
 __all__ = ['ReplayResult', 'replay']
 
@@ -41,20 +40,6 @@ class ReplayResult:
     max_force_difference_n: float
     max_request_difference_pct: float
     differing_overrides: int
-
-
-def _metrics(session: Session, experiment: Experiment, force: FloatArray,
-             answered: FloatArray) -> dict[str, float]:
-    s = session.signals
-    depth = s['depth_mm'] if session.has_truth else np.ones_like(force)
-    reference = np.full_like(force, experiment.controller.reference_force_n)
-    # The override a block ran at is the answer to the block before it.
-    applied = np.concatenate([[experiment.controller.initial_override_pct], answered[:-1]])
-    keep = ~np.isnan(force)
-    return compute_metrics(session.t_s[keep], force[keep], reference[keep], depth[keep],
-                           np.nan_to_num(applied[keep], nan=0.0),
-                           experiment.plant.depth_profile.change_times_s(),
-                           experiment.metric_settings)
 
 
 def replay(session: Session, sets: Sequence[str] = (),
@@ -88,8 +73,8 @@ def replay(session: Session, sets: Sequence[str] = (),
 
     return ReplayResult(
         experiment=experiment,
-        recorded=_metrics(session, session.experiment, recorded_force, recorded_answer),
-        rerun=_metrics(session, experiment, force, answered),
+        recorded=estimate_metrics(session, session.experiment, recorded_force, recorded_answer),
+        rerun=estimate_metrics(session, experiment, force, answered),
         estimated_force_n=force,
         requested_override_pct=requested,
         answered_override_pct=answered,
