@@ -47,6 +47,10 @@ def test_report_writes_the_figure(capfd, tmp_path):
     assert main(['report', str(REFERENCE), '--out', str(tmp_path / 'r.png')]) == 0
     assert (tmp_path / 'r.png').stat().st_size > 50_000
     assert 'steady_mean_abs_error_n' in capfd.readouterr().out
+    assert main(['report', str(REFERENCE), '--out', str(tmp_path / 'r.html')]) == 0
+    page = (tmp_path / 'r.html').read_text()
+    assert 'data:image/png;base64,' in page and 'steady_mean_abs_error_n' in page
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['r.html', 'r.png']
 
 
 @pytest.mark.parametrize(('argv', 'message'), [
@@ -56,7 +60,7 @@ def test_report_writes_the_figure(capfd, tmp_path):
     (['run', str(FIG8), '--set', 'lambda=3'], "--set 'lambda=3': expected node.param=value"),
     (['replay', 'bags/none'], 'bags/none: not a rosbag2 folder'),
     (['replay', str(REFERENCE), '--publish', '--rate', '0'], '--rate 0.0: must be positive'),
-    (['report', str(REFERENCE), '--out', 'x.svg'], '--out x.svg: only .png'),
+    (['report', str(REFERENCE), '--out', 'x.svg'], '--out x.svg: write .png or .html'),
 ])
 def test_bad_input_exits_2_naming_it(capfd, argv, message):
     assert main(argv) == 2

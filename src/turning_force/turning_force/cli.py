@@ -8,7 +8,7 @@
   controller and quantiser
   re-run on the recorded currents; recorded and re-run side by side. ``--publish [--rate R]``
   plays the bag's sensor topics into a live graph instead.
-- ``report BAG [--out FILE.png]``: the paper-style figure and the metrics.
+- ``report BAG [--out FILE.png|FILE.html]``: the paper-style figure and the metrics.
 - ``reproduce [--dir config/experiments] [--json]``: the papers' scenarios beside their numbers.
 
 Errors in the user's input (a bad file, key, value or bag) print one line naming it and exit 2.
@@ -111,14 +111,14 @@ def _replay(args: argparse.Namespace) -> int:
 
 def _report(args: argparse.Namespace) -> int:
     from turning_force.session.reader import read_session, recorded_metrics
-    from turning_force.session.report import write_report
+    from turning_force.session.report import write_html_report, write_report
 
+    out = Path(args.out) if args.out else Path(str(args.bag).rstrip('/') + '.png')
+    if out.suffix not in ('.png', '.html'):
+        raise TurningForceError(f'--out {out}: write .png or .html')
     session = read_session(args.bag)
     metrics = recorded_metrics(session)
-    out = Path(args.out) if args.out else Path(str(session.path).rstrip('/') + '.png')
-    if out.suffix != '.png':
-        raise TurningForceError(f'--out {out}: only .png is written')
-    write_report(session, metrics, out)
+    (write_report if out.suffix == '.png' else write_html_report)(session, metrics, out)
     _print_metrics(f'{session.path}: figure {out}', metrics)
     return 0
 
@@ -165,7 +165,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     report = commands.add_parser('report', help='the figure and metrics of a session')
     report.add_argument('bag', help='session folder (rosbag2, MCAP)')
-    report.add_argument('--out', help='PNG to write (default: beside the session)')
+    report.add_argument('--out', help='PNG or HTML to write (default: a PNG beside the '
+                        'session)')
     report.set_defaults(handler=_report)
 
     papers = commands.add_parser('reproduce', help="the papers' scenarios beside their numbers")

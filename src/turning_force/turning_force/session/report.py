@@ -3,6 +3,9 @@ cut, feed and override over time, and the metrics beside them (Park 1998, Figs. 
 
 from __future__ import annotations
 
+import base64
+import html
+import io
 from pathlib import Path
 
 import matplotlib
@@ -15,7 +18,7 @@ import numpy as np
 from turning_force.core.metrics import METRIC_NAMES
 from turning_force.session.reader import Session
 
-__all__ = ['write_report']
+__all__ = ['figure_png', 'write_html_report', 'write_report']
 
 METRIC_LABELS = {
     'mean_abs_error_n': ('mean |error|', 'N'),
@@ -31,6 +34,13 @@ METRIC_LABELS = {
 
 def write_report(session: Session, metrics: dict[str, float], out: Path) -> Path:
     """Draw the session to ``out`` (PNG) and return the path."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_bytes(figure_png(session, metrics))
+    return out
+
+
+def figure_png(session: Session, metrics: dict[str, float]) -> bytes:
+    """The figure of a session as PNG bytes."""
     s, t = session.signals, session.t_s
     experiment = session.experiment
     reference = s['reference_n']
@@ -96,7 +106,27 @@ def write_report(session: Session, metrics: dict[str, float], out: Path) -> Path
     table.set_fontsize(8)
     table.scale(1.0, 1.4)
 
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=120)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format='png', dpi=120)
     plt.close(fig)
+    return buffer.getvalue()
+
+
+def write_html_report(session: Session, metrics: dict[str, float], out: Path) -> Path:
+    """One self-contained HTML page: the figure (embedded PNG) and the metrics table."""
+    image = base64.b64encode(figure_png(session, metrics)).decode('ascii')
+    experiment = session.experiment
+    title = html.escape(experiment.run.name if experiment is not None else session.path.name)
+    rows = ''.join(
+        f'<tr><td>{html.escape(METRIC_LABELS[k][0])}</td><td>{html.escape(k)}</td>'
+        f'<td style="text-align:right">{metrics[k]:.3f} {html.escape(METRIC_LABELS[k][1])}</td>'
+        '</tr>' for k in (*METRIC_NAMES, 'realtime_factor') if k in metrics)
+    out.write_text(
+        f'<!DOCTYPE html>\n<html><head><meta charset="utf-8"><title>{title}</title></head>'
+        f'<body style="font-family:sans-serif"><h1>{title}</h1>'
+        f'<p>session: {html.escape(str(session.path))}</p>'
+        f'<img alt="force, depth, feed and override over time" '
+        f'src="data:image/png;base64,{image}" style="max-width:100%">'
+        f'<table border="1" cellpadding="4"><tr><th>metric</th><th>key</th><th>value</th></tr>'
+        f'{rows}</table></body></html>\n')
     return out
