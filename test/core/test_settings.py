@@ -137,3 +137,12 @@ def test_every_shipped_experiment_loads(experiments_dir):
     for path in files:
         e = load_experiment(path)
         assert e.run.name == path.stem
+
+
+def test_set_refuses_an_unknown_node_and_takes_shared_values(tmp_path):
+    e = load_experiment(write(tmp_path, 'experiment:\n  ros__parameters: {duration_s: 3.0}\n'))
+    with pytest.raises(ConfigError,
+                       match=r"--set 'lathe_simm\.seed=2': unknown node 'lathe_simm'"):
+        e.with_sets(['lathe_simm.seed=2'])
+    shared = e.with_sets(['/**.spindle_speed_rpm=900.0'])
+    assert shared.plant.spindle_speed_rpm == shared.controller.spindle_speed_rpm == 900.0

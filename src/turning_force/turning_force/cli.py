@@ -9,6 +9,8 @@
   re-run on the recorded currents; recorded and re-run side by side. ``--publish [--rate R]``
   plays the bag's sensor topics into a live graph instead.
 - ``report BAG [--out FILE.png|FILE.html]``: the paper-style figure and the metrics.
+- ``calibrate BAG BAG ... [--settle-s S] [--json]``: friction (Park Eq. 25) from air-cut
+  sessions at two or more feeds, printed as ``force_estimator`` parameters.
 - ``reproduce [--dir config/experiments] [--json]``: the papers' scenarios beside their numbers.
 
 Errors in the user's input (a bad file, key, value or bag) print one line naming it and exit 2.
@@ -24,7 +26,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from turning_force.core.errors import TurningForceError
+from turning_force.core.errors import NoCutError, TurningForceError
 from turning_force.core.experiment import load_experiment
 from turning_force.core.metrics import METRIC_NAMES
 from turning_force.core.simulate import simulate
@@ -54,9 +56,12 @@ def _run(args: argparse.Namespace) -> int:
         bag = Path(args.out or f'bags/{experiment.run.name}_{stamp}')
         outcome = run_lockstep(experiment, bag, None if args.json else print_progress)
         session = read_session(bag)
-        metrics = recorded_metrics(session)
+        try:
+            metrics = recorded_metrics(session)
+        except NoCutError:
+            metrics = {}   # an air cut: recorded, nothing to score
         metrics['realtime_factor'] = outcome.realtime_factor
-        figure = write_report(session, metrics, bag.with_suffix('.png'))
+        figure = write_report(session, metrics, Path(f'{bag}.png'))
         out = {'experiment': experiment.run.name, 'session': str(bag), 'figure': str(figure),
                'executor': outcome.executor, 'metrics': metrics}
     if args.json:
@@ -123,6 +128,29 @@ def _report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _calibrate(args: argparse.Namespace) -> int:
+    from turning_force.session.calibrate import calibrate
+    from turning_force.session.reader import read_session
+
+    result = calibrate([read_session(bag) for bag in args.bags], args.settle_s)
+    parameters = result.estimator_parameters()
+    if args.json:
+        print(json.dumps({'force_estimator': parameters, 'residual_a': result.residual_a(),
+                          'points': [{'feed_mm_min': f, 'friction_current_a': i} for f, i
+                                     in zip(result.feeds_mm_min, result.currents_a,
+                                            strict=True)]}))
+        return 0
+    print('air cuts (mean feed, friction current):')
+    for feed, current in zip(result.feeds_mm_min, result.currents_a, strict=True):
+        print(f'  {feed:8.1f} mm/min  {current:7.4f} A')
+    print(f'Park Eq. 25 fitted, largest residual {result.residual_a():.4f} A; for the '
+          'experiment file:')
+    print('/**/force_estimator:\n  ros__parameters:')
+    for name, value in parameters.items():
+        print(f'    {name}: {value:.6g}')
+    return 0
+
+
 def _reproduce(args: argparse.Namespace) -> int:
     results = reproduce(Path(args.dir))
     if args.json:
@@ -168,6 +196,13 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument('--out', help='PNG or HTML to write (default: a PNG beside the '
                         'session)')
     report.set_defaults(handler=_report)
+
+    cal = commands.add_parser('calibrate', help='friction (Park Eq. 25) from air-cut sessions')
+    cal.add_argument('bags', nargs='+', help='air-cut sessions, one feed each, two or more')
+    cal.add_argument('--settle-s', type=float, default=0.5,
+                     help='time left out at the start of each session [s]')
+    cal.add_argument('--json', action='store_true', help='print one JSON object')
+    cal.set_defaults(handler=_calibrate)
 
     papers = commands.add_parser('reproduce', help="the papers' scenarios beside their numbers")
     papers.add_argument('--dir', default='config/experiments', help='experiment files')

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
-__all__ = ['ConfigError', 'TurningForceError']
+__all__ = ['ConfigError', 'NoCutError', 'TurningForceError']
 
 
 class TurningForceError(Exception):
     """Base of every error turning_force raises on purpose."""
+
+
+class NoCutError(TurningForceError, ValueError):
+    """A run in which the tool never cut (an air cut): there is no force to score."""
 
 
 class ConfigError(TurningForceError, ValueError):

@@ -38,6 +38,7 @@ __all__ = [
     'EstimatorSettings',
     'ForceEstimate',
     'ForceEstimator',
+    'air_cut_point',
     'calibrate_friction',
 ]
 
@@ -216,9 +217,11 @@ def calibrate_friction(
     With no cutting force the friction current is ``i_q`` less Eq. 26's zero-force offset; each
     block gives one point (its mean feed, its mean friction current).
     """
-    feeds, currents = [], []
-    for block in air_cuts:
-        _, current_q = clarke_park(block.phase_u_a, block.phase_v_a, block.rotor_angle_rad)
-        feeds.append(float(np.mean(block.feed_rate_mm_min)))
-        currents.append(float(np.mean(current_q)) - current_map.offset_a)
-    return FrictionModel.calibrate(feeds, currents)
+    points = [air_cut_point(block, current_map) for block in air_cuts]
+    return FrictionModel.calibrate([p[0] for p in points], [p[1] for p in points])
+
+
+def air_cut_point(block: CurrentBlock, current_map: CurrentForceMap) -> tuple[float, float]:
+    """One air-cut block's (mean feed [mm/min], friction current [A])."""
+    _, current_q = clarke_park(block.phase_u_a, block.phase_v_a, block.rotor_angle_rad)
+    return float(np.mean(block.feed_rate_mm_min)), float(np.mean(current_q)) - current_map.offset_a

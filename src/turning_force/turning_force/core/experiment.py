@@ -63,6 +63,8 @@ class RunSettings(Settings):
                                      low=0.0)
     allowed_error_n: float = setting(10.0, 'Allowed tracking error: the band of the settling '
                                      'time and of the figures', 'N', low=0.0, low_open=True)
+    arm_bridge: bool = setting(True, 'The run arms the PMC bridge; false keeps it disarmed, the '
+                               'machine at the programmed feed (an air cut for calibration)')
 
 
 @dataclass(frozen=True)
@@ -92,9 +94,10 @@ class Experiment:
         """A copy with ``node.param=value`` assignments applied (values parsed as YAML)."""
         sections = {name: dict(params) for name, params in self.sections.items()}
         for text in assignments:
-            node, param, value = parse_set(text)
-            if node == SHARED:
-                raise ConfigError(f'--set {text!r}: name a node, not {SHARED}')
+            node, param, value = parse_set(text)   # '/**.param=value' sets a shared value
+            if node != SHARED and node not in SETTINGS_OF and node not in OTHER_SECTIONS:
+                known = ', '.join([SHARED, *SETTINGS_OF, *OTHER_SECTIONS])
+                raise ConfigError(f'--set {text!r}: unknown node {node!r}; known: {known}')
             sections.setdefault(node, {})[param] = value
         return build_experiment(self.source, sections)
 

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from turning_force.core.errors import NoCutError
+
 __all__ = ['METRIC_NAMES', 'MetricSettings', 'compute_metrics']
 
 FloatArray = npt.NDArray[np.float64]
@@ -65,7 +67,7 @@ def compute_metrics(
     """
     engaged = depth_mm > 0
     if not np.any(engaged):
-        raise ValueError('the tool never engages: no metrics')
+        raise NoCutError('the tool never engages (an air cut): no force metrics')
     start = float(t_s[np.argmax(engaged)])
     end = float(t_s[-1])
     keep = t_s >= start

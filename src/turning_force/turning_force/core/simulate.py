@@ -15,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core.control import make_controller
+from turning_force.core.errors import NoCutError
 from turning_force.core.estimation import ForceEstimator
 from turning_force.core.experiment import Experiment
 from turning_force.core.metrics import compute_metrics
@@ -53,7 +54,7 @@ def simulate(experiment: Experiment) -> SimulationResult:
     wall_start = time.perf_counter()
     table = get_table(experiment.bridge.override_table)
     controller = make_controller(experiment.controller)
-    gate = OverrideGate(experiment.bridge.replace(armed=True), t_s=0.0)
+    gate = OverrideGate(experiment.bridge.replace(armed=experiment.run.arm_bridge), t_s=0.0)
     applied = table.quantise(experiment.controller.initial_override_pct)
     plant = LathePlant(experiment.plant, initial_override_pct=applied)
     estimator = ForceEstimator(experiment.estimator)
@@ -75,10 +76,13 @@ def simulate(experiment: Experiment) -> SimulationResult:
         gate.on_command(out.override_pct, t_end)
         applied = gate.decide(t_end).applied_pct
     trace = {name: rows[:, i].copy() for i, name in enumerate(TRACE_NAMES)}
-    metrics = compute_metrics(
-        trace['t_s'], trace['force_n'], trace['reference_n'], trace['depth_mm'],
-        trace['applied_override_pct'], experiment.plant.depth_profile.change_times_s(),
-        experiment.metric_settings,
-    )
+    try:
+        metrics = compute_metrics(
+            trace['t_s'], trace['force_n'], trace['reference_n'], trace['depth_mm'],
+            trace['applied_override_pct'], experiment.plant.depth_profile.change_times_s(),
+            experiment.metric_settings,
+        )
+    except NoCutError:
+        metrics = {}
     metrics['realtime_factor'] = experiment.run.duration_s / (time.perf_counter() - wall_start)
     return SimulationResult(trace, metrics)
