@@ -211,11 +211,6 @@ class LathePlant:
         """Feed-axis position at the end of the last block."""
         return self._position_mm
 
-    @property
-    def time_s(self) -> float:
-        """Time of the next sample."""
-        return self._k * self._dt
-
     def step(self, override_pct: float) -> PlantBlock:
         """Apply ``override_pct`` for one block and return its samples."""
         s, n, dt = self.settings, self.samples_per_block, self._dt
