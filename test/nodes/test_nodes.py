@@ -149,12 +149,17 @@ def estimate(force_n: float, sec: int = 1, status: int = ForceEstimate.STATUS_OK
     return msg
 
 
-def test_controller_answers_each_estimate_with_its_stamp(context, executor, spin_until):
-    controller = ForceControllerNode(context=context)
-    executor.add_node(controller)
+@pytest.fixture
+def controller_rig(context, executor):
+    """A controller node, what it commands, and a publisher of estimates to it."""
+    executor.add_node(ForceControllerNode(context=context))
     probe = Probe(context, executor)
-    commands = probe.listen(FeedCommand, 'control/feed_command')
-    estimates = probe.publisher(ForceEstimate, 'force/estimate')
+    return (probe.listen(FeedCommand, 'control/feed_command'),
+            probe.publisher(ForceEstimate, 'force/estimate'))
+
+
+def test_controller_answers_each_estimate_with_its_stamp(controller_rig, spin_until):
+    commands, estimates = controller_rig
     assert until_heard(spin_until, estimates, estimate(450.0, sec=7), commands)
     command = commands[-1]
     assert command.header.stamp.sec == 7 and command.controller == 'smc'
@@ -162,12 +167,8 @@ def test_controller_answers_each_estimate_with_its_stamp(context, executor, spin
     assert 0.0 <= command.override_pct <= 150.0
 
 
-def test_controller_ignores_estimates_it_cannot_trust(context, executor, spin_until):
-    controller = ForceControllerNode(context=context)
-    executor.add_node(controller)
-    probe = Probe(context, executor)
-    commands = probe.listen(FeedCommand, 'control/feed_command')
-    estimates = probe.publisher(ForceEstimate, 'force/estimate')
+def test_controller_ignores_estimates_it_cannot_trust(controller_rig, spin_until):
+    commands, estimates = controller_rig
     assert until_heard(spin_until, estimates, estimate(450.0), commands)
     spin_until(lambda: False, timeout_s=0.3)   # the repeats still in flight are answered too
     before = len(commands)

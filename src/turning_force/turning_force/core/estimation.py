@@ -53,6 +53,12 @@ class EstimateStatus(enum.IntEnum):
     INVALID_INPUT = 2
     SATURATED = 3
 
+    @property
+    def actionable(self) -> bool:
+        """Whether a controller may act on an estimate of this status. A saturated current
+        still says the force is large; a stale or invalid one says nothing new."""
+        return self in (EstimateStatus.OK, EstimateStatus.SATURATED)
+
 
 @dataclass(frozen=True)
 class EstimatorSettings(FeedDriveSettings):

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.control import make_controller
+from turning_force.core.control import ControlOutput, make_controller
 from turning_force.core.errors import NoCutError
 from turning_force.core.estimation import ForceEstimator
 from turning_force.core.experiment import Experiment
@@ -61,19 +61,21 @@ def simulate(experiment: Experiment) -> SimulationResult:
     steps = round(experiment.run.duration_s / experiment.run.control_period_s)
     rows = np.empty((steps, len(TRACE_NAMES)))
     reference = experiment.controller.reference_force_n
+    out = ControlOutput(applied, 0.0, 0.0)
     for k in range(steps):
         block = plant.step(applied)
         estimate = estimator.update(block.currents)
-        out = controller.update(estimate.force_n, estimate.force_rate_n_s)
         t_end = block.currents.t0_s + len(block.currents) * block.currents.sample_period_s
+        gate.on_force(estimate.force_n)
+        if estimate.status.actionable:   # as the controller node: no command otherwise
+            out = controller.update(estimate.force_n, estimate.force_rate_n_s)
+            gate.on_command(out.override_pct, t_end)
         rows[k] = (
             t_end,
             block.force_n[-1], estimate.force_n, estimate.force_rate_n_s, reference,
             block.depth_mm[-1], block.feed_mm_rev[-1], out.override_pct, applied,
             out.sliding_variable,
         )
-        gate.on_force(estimate.force_n)
-        gate.on_command(out.override_pct, t_end)
         applied = gate.decide(t_end).applied_pct
     trace = {name: rows[:, i].copy() for i, name in enumerate(TRACE_NAMES)}
     try:

@@ -23,6 +23,7 @@ from std_msgs.msg import Float64
 from turning_force_msgs.msg import FeedCommand, ForceEstimate
 
 from turning_force.core.control import ControllerSettings, make_controller
+from turning_force.core.estimation import EstimateStatus
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
 from turning_force.nodes.spin import run_nodes
@@ -31,7 +32,6 @@ __all__ = ['REFERENCE_QOS', 'ForceControllerNode', 'main']
 
 REFERENCE_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                            reliability=ReliabilityPolicy.RELIABLE)
-ACTIONABLE = (ForceEstimate.STATUS_OK, ForceEstimate.STATUS_SATURATED)
 
 
 class ForceControllerNode(Node):
@@ -63,7 +63,7 @@ class ForceControllerNode(Node):
 
     def _on_estimate(self, msg: ForceEstimate) -> None:
         self.diagnostics.received('force/estimate')
-        if msg.status not in ACTIONABLE or not math.isfinite(msg.force_n):
+        if not EstimateStatus(msg.status).actionable or not math.isfinite(msg.force_n):
             self.diagnostics.warn(f'force/estimate status {msg.status}: {msg.detail}')
             return
         out = self._controller.update(msg.force_n, msg.force_rate_n_s)

@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core.control import make_controller
-from turning_force.core.estimation import EstimateStatus, ForceEstimator
+from turning_force.core.estimation import ForceEstimator
 from turning_force.core.experiment import Experiment
 from turning_force.core.overrides import get_table
 from turning_force.session.bag import BagError
@@ -26,7 +26,6 @@ from turning_force.session.reader import Session, estimate_metrics
 __all__ = ['ReplayResult', 'replay']
 
 FloatArray = npt.NDArray[np.float64]
-ACTIONABLE = (EstimateStatus.OK, EstimateStatus.SATURATED)
 
 
 @dataclass(frozen=True)
@@ -58,7 +57,7 @@ def replay(session: Session, sets: Sequence[str] = (),
     for k, block in enumerate(session.blocks):
         estimate = estimator.update(block)
         force[k] = estimate.force_n
-        if estimate.status in ACTIONABLE:
+        if estimate.status.actionable:
             out = controller.update(estimate.force_n, estimate.force_rate_n_s)
             requested[k] = out.override_pct
             answered[k] = table.quantise(out.override_pct)
