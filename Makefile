@@ -1,6 +1,6 @@
 # turning_force: the two commands of the README.
 #   make run    set up (venv, ROS 2 wheels, our messages, our package) and run the default experiment
-#   make test   set up, lint, type-check and run the tests
+#   make test   set up, lint, type-check and run the tests (make test-all: the slow ones too)
 # Set-up steps leave stamps in .venv/.stamps and are skipped when done.
 
 VENV    := .venv
@@ -13,7 +13,7 @@ EXPERIMENT ?= config/experiments/park1998_fig8.yaml
 # Keep DDS discovery on this machine, so runs and tests do not hear other hosts.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: setup run test lint reproduce bench clean
+.PHONY: setup run test test-all lint reproduce bench clean
 
 KERNEL  := src/turning_force/turning_force/core/kernel/jit.py
 
@@ -58,7 +58,12 @@ lint: setup
 	$(VENV)/bin/ruff check src test
 	$(VENV)/bin/mypy
 
+# make test: every test but the slow ones (under 10 minutes on 2 cores, set-up included);
+# make test-all: all of them (the colcon workspace, every row of the robustness matrix).
 test: lint
+	$(PY) -m pytest -q -m 'not slow' test
+
+test-all: lint
 	$(PY) -m pytest -q test
 
 bench: setup

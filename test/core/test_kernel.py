@@ -84,8 +84,20 @@ def test_every_experiment_file(path):
         assert_same_run(e)
 
 
-@pytest.mark.parametrize('scenario', robustness.MATRIX, ids=[s.name for s in robustness.MATRIX])
-@pytest.mark.parametrize('controller', sorted(robustness.CONTROLLERS))
+def _matrix_rows() -> list[object]:
+    """Every (scenario, controller) of the matrix; in ``make test`` each scenario once, the
+    controllers taken in turn (every scenario and every law held to the reference), the other
+    rows in ``make test-all`` (marked slow: about 5 s each)."""
+    laws = sorted(robustness.CONTROLLERS)
+    rows = []
+    for i, scenario in enumerate(robustness.MATRIX):
+        for j, law in enumerate(laws):
+            marks = () if j == i % len(laws) else (pytest.mark.slow,)
+            rows.append(pytest.param(scenario, law, marks=marks, id=f'{law}-{scenario.name}'))
+    return rows
+
+
+@pytest.mark.parametrize(('scenario', 'controller'), _matrix_rows())
 def test_the_robustness_matrix(scenario, controller):
     # Each row's first 6 s: engagement and the first depth step (4 s) on that machine.
     e = robustness.scenario_experiment(EXPERIMENTS, scenario, controller)

@@ -1,6 +1,8 @@
 """`ros2 run turning_force <node>` works: colcon builds the workspace against the ROS wheels, the
 executable is found the way ros2run finds it, and the node starts from an experiment file.
 
+Slow (a colcon build of the workspace, one to three minutes): run by ``make test-all``.
+
 ros2cli is not on PyPI, so the lookup is done here with ament_index_python exactly as
 ``ros2run.api.get_executable_path`` does: package prefix from the ament index, then
 ``<prefix>/lib/<package>/<executable>``, which must be an executable file.
@@ -19,6 +21,8 @@ from ament_index_python.packages import get_package_prefix
 from rclpy.node import Node
 from rclpy.parameter_client import AsyncParameterClient
 from turning_force_msgs.msg import ForceEstimate, ServoCurrents
+
+pytestmark = pytest.mark.slow
 
 VENV = Path(sys.prefix)
 EXECUTABLES = ['lathe_sim', 'force_estimator', 'force_controller', 'pmc_bridge',
