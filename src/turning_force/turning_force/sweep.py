@@ -433,18 +433,20 @@ def _progress_bar(total: int, enabled: bool, unit: str) -> Any:
 
     # Shown once a run has taken a second: short sweeps print nothing.
     return tqdm(total=total, unit=unit, disable=not enabled, delay=1.0, smoothing=0.1,
-                dynamic_ncols=True)
+                dynamic_ncols=True, leave=False)
 
 
 def _pool(jobs: int) -> Any:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    # forkserver: each worker starts from a clean server process, never from a fork of a
-    # process that runs threads (rclpy's, the kernel's loader); the initializer loads the
-    # kernel once per worker.
-    return ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context('forkserver'),
-                               initializer=_load_kernel)
+    # forkserver: each worker is a fork of a server process that runs no threads, never of
+    # this one (rclpy's threads, the kernel's loader). The server imports the kernel once
+    # (numba's import and the cached machine code, about a second), so that every worker of
+    # every sweep starts with it; the initializer only finishes the load.
+    context = multiprocessing.get_context('forkserver')
+    context.set_forkserver_preload(['__main__', 'turning_force.core.kernel.jit'])
+    return ProcessPoolExecutor(jobs, mp_context=context, initializer=_load_kernel)
 
 
 def _map_local(func: Callable[..., Any], calls: Sequence[tuple[Any, ...]], jobs: int,
