@@ -732,7 +732,7 @@ def build_parser() -> argparse.ArgumentParser:
                      metavar='NODE.PARAM=START:STOP:N',
                      help='one axis (repeatable): START:STOP:N evenly spaced, START:STOP:Nlog '
                      'log-spaced, or v1,v2,... (values read as YAML)')
-    swp.add_argument('--replay', metavar='BAG', help='open loop on this session\'s recorded '
+    swp.add_argument('--replay', metavar='BAG', help="open loop on this session's recorded "
                      'currents instead of the simulator')
     add_params(swp)
     add_set(swp)

@@ -484,8 +484,9 @@ def _map_dask(dask: Any, func: Callable[..., Any], calls: Sequence[tuple[Any, ..
                                 "'turning_force[dask]'") from None
     own = not isinstance(dask, distributed.Client)
     address = str(dask) if own else str(dask.scheduler.address)
+    connect: Any = distributed.Client
     try:
-        client = distributed.Client(address, timeout='10s') if own else dask
+        client = connect(address, timeout='10s') if own else dask
     except (OSError, TimeoutError, ValueError) as exc:
         raise TurningForceError(f'--dask {address}: cannot connect: {_error_text(exc)}') \
             from exc
@@ -493,7 +494,7 @@ def _map_dask(dask: Any, func: Callable[..., Any], calls: Sequence[tuple[Any, ..
         sent = client.scatter(shared, broadcast=True)
         futures = [client.submit(func, sent, *call, pure=False) for call in calls]
         index = {future.key: i for i, future in enumerate(futures)}
-        for future in distributed.as_completed(futures):
+        for future in distributed.as_completed(futures):   # type: ignore[no-untyped-call]
             try:
                 result = future.result()
             except Exception as exc:   # the task itself failed there: an install problem
@@ -644,7 +645,7 @@ def _write_figure(result: SweepResult, path: Path, metric: str) -> Path:
             ax.grid(True, alpha=0.3)
         else:
             second = result.axes[1]
-            plane = values[(slice(None), slice(None), *best[2:])]
+            plane = values[(slice(None), slice(None), *best[2:])]   # type: ignore[arg-type]
             cmap = plt.get_cmap('viridis' if better == 'higher' else 'viridis_r').copy()
             cmap.set_bad('0.85')   # errors and points without a number
             image = ax.imshow(np.ma.masked_invalid(plane.T), origin='lower', aspect='auto',
@@ -729,10 +730,10 @@ def sweep(experiment: Experiment | str | Path | None, grid: GridSpec, *,
             if parse_set(text)[2] != (list(value) if isinstance(value, tuple) else value):
                 raise ConfigError(f'{axis.where}: {value!r} does not read back from YAML')
             try:
-                point = base.with_sets([*sets, text])
+                with_value = base.with_sets([*sets, text])
             except ConfigError as exc:
                 raise ConfigError(f'{axis.where}: {exc}') from exc
-            set_to = getattr(getattr(point, attr), param, None) if attr else None
+            set_to = getattr(getattr(with_value, attr), param, None) if attr else None
             if not (attr and type(set_to) is type(value) and set_to == value):
                 attr = None
         if attr:
