@@ -646,8 +646,9 @@ def _write_figure(result: SweepResult, path: Path, metric: str) -> Path:
         else:
             second = result.axes[1]
             plane = values[(slice(None), slice(None), *best[2:])]   # type: ignore[arg-type]
-            cmap = plt.get_cmap('viridis' if better == 'higher' else 'viridis_r').copy()
-            cmap.set_bad('0.85')   # errors and points without a number
+            # Errors and points without a number in grey.
+            cmap = plt.get_cmap('viridis' if better == 'higher' else 'viridis_r').with_extremes(
+                bad='0.85')
             image = ax.imshow(np.ma.masked_invalid(plane.T), origin='lower', aspect='auto',
                               cmap=cmap, interpolation='nearest')
             fig.colorbar(image, ax=ax, label=f'{metric} ({better} is better)')
