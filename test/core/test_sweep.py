@@ -10,7 +10,7 @@ import shutil
 import pytest
 
 from turning_force import sweep as sweep_module
-from turning_force.core.errors import ConfigError
+from turning_force.core.errors import ConfigError, TurningForceError
 from turning_force.core.experiment import load_experiment, parse_set
 from turning_force.core.metrics import METRIC_NAMES
 from turning_force.core.simulate import simulate
@@ -252,7 +252,7 @@ def test_the_table_reads_back_from_csv_and_parquet(swept, tmp_path):
         assert (read['kernel'], read['error']) == ('compiled', '')
     swept.write(tmp_path / 't.parquet')
     assert pq.read_table(tmp_path / 't.parquet').to_pylist() == swept.table
-    with pytest.raises(Exception, match='write .csv or .parquet'):
+    with pytest.raises(TurningForceError, match=r'write \.csv or \.parquet'):
         swept.write(tmp_path / 't.xlsx')
 
 
