@@ -276,7 +276,7 @@ def _replay_many(args: argparse.Namespace) -> int:
     experiment = load_experiment(args.experiment) if args.experiment else None
     results = replay_sessions(args.bags, args.set, experiment=experiment, params=args.params,
                               partial=args.partial, jobs=args.jobs, dask=args.dask,
-                              progress=not args.json)
+                              progress=_progress(args))
     for r in results:
         if r.warning:
             print(f'turning-force: warning: {r.warning}', file=sys.stderr)
@@ -327,6 +327,11 @@ def _print_replay_table(args: argparse.Namespace, results: Sequence[Any],
           'largest, overrides added up)')
 
 
+def _progress(args: argparse.Namespace) -> bool:
+    """A progress bar for a terminal, not for a log or --json."""
+    return not args.json and sys.stderr.isatty()
+
+
 def _sweep(args: argparse.Namespace) -> int:
     from turning_force.sweep import BETTER, parse_grid, sweep
 
@@ -361,7 +366,7 @@ def _sweep(args: argparse.Namespace) -> int:
     else:
         raise TurningForceError('sweep: give EXPERIMENT, or --replay BAG')
     result = sweep(experiment, axes, replay=replayed, sets=args.set, metric=args.metric,
-                   jobs=args.jobs, dask=args.dask, progress=not args.json,
+                   jobs=args.jobs, dask=args.dask, progress=_progress(args),
                    partial=args.partial)
     if args.out:
         result.write(args.out)
