@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import math
 import shutil
+import sys
 
 import pytest
 
@@ -331,3 +332,17 @@ def test_several_sessions_on_dask_are_the_local_replays(cluster, two_bags):
     with Client(cluster) as client:
         on_dask = replay_sessions(two_bags, sets, dask=client)
     assert on_dask == replay_sessions(two_bags, sets, jobs=1)
+
+
+def test_dask_not_installed_is_one_error_naming_the_extra(short_fig8, monkeypatch):
+    monkeypatch.setitem(sys.modules, 'distributed', None)   # what an install without it gives
+    with pytest.raises(TurningForceError, match=r"--dask: dask.distributed is not installed; "
+                                                r"pip install 'turning_force\[dask\]'"):
+        sweep(short_fig8, GRID, dask='tcp://127.0.0.1:8786', progress=False)
+
+
+def test_pyarrow_not_installed_is_one_error_naming_the_extra(swept, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, 'pyarrow', None)
+    with pytest.raises(TurningForceError, match=r"writing Parquet needs pyarrow; pip install "
+                                                r"'turning_force\[parquet\]', or write \.csv"):
+        swept.write(tmp_path / 't.parquet')

@@ -306,6 +306,7 @@ class _Job:
     axes: tuple[tuple[str, ...], ...]           # per axis, its values' --set texts
     bag: str | None = None                      # open loop on this session
     partial: bool = False
+    bag_stamp: int = 0                          # its metadata's time: a rewritten bag is new
     # base.with_sets(sets), and per axis (node, param, values) where every axis can be set by
     # replacing a field (see _FAST_SECTIONS; the sweep checks that both ways agree).
     start: Experiment | None = None
@@ -342,14 +343,22 @@ class _Job:
         return dataclasses.replace(self.start, sections=sections, **replaced)
 
 
-# The session an open-loop sweep replays, read once per worker process.
-_SESSIONS: dict[tuple[str, bool], Session] = {}
+# The session an open-loop sweep replays, read once per worker process (a Dask worker keeps
+# it from one sweep to the next, unless the bag was written again).
+_SESSIONS: dict[tuple[str, bool, int], Session] = {}
 
 
-def _session(bag: str, partial: bool) -> Session:
+def _bag_stamp(bag: str) -> int:
+    try:
+        return (Path(bag) / 'metadata.yaml').stat().st_mtime_ns
+    except OSError:   # read_session says what is wrong with the bag
+        return 0
+
+
+def _session(bag: str, partial: bool, stamp: int) -> Session:
     from turning_force.session.reader import read_session
 
-    key = (bag, partial)
+    key = (bag, partial, stamp)
     if key not in _SESSIONS:
         _SESSIONS.clear()   # one at a time: an hour-long session is large
         _SESSIONS[key] = read_session(bag, partial)
@@ -405,7 +414,8 @@ def _replay_point(job: _Job, sets: Sequence[str]) -> dict[str, Any]:
     from turning_force.session.replay import replay
 
     assert job.bag is not None
-    session = dataclasses.replace(_session(job.bag, job.partial), experiment=job.base)
+    session = dataclasses.replace(_session(job.bag, job.partial, job.bag_stamp),
+                                  experiment=job.base)
     result = replay(session, sets)
     out: dict[str, Any] = {name: result.rerun.get(name, math.nan) for name in METRIC_NAMES}
     for name in REPLAY_COLUMNS:
@@ -707,12 +717,15 @@ def sweep(experiment: Experiment | str | Path | None, grid: GridSpec, *,
     if metric not in BETTER:
         raise ConfigError(f'--metric {metric!r}: not a metric; known: {", ".join(METRIC_NAMES)}')
     bag: str | None = None
+    stamp = 0
     if replay is not None:
-        from turning_force.session.reader import Session
+        from turning_force.session.reader import Session, read_session
 
-        session = replay if isinstance(replay, Session) else _session(str(replay), partial)
+        session = replay if isinstance(replay, Session) else read_session(replay, partial)
         bag = str(session.path)
-        _SESSIONS[(bag, partial)] = session   # this process's points use it as read
+        stamp = _bag_stamp(bag)
+        _SESSIONS.clear()
+        _SESSIONS[(bag, partial, stamp)] = session   # this process's points use it as read
         if experiment is None:
             if session.experiment is None:
                 raise TurningForceError(f'{bag}: no recorded parameters to replay with; give '
@@ -740,10 +753,13 @@ def sweep(experiment: Experiment | str | Path | None, grid: GridSpec, *,
         if attr:
             fast.append((node, param, axis.values))
     job = _Job(base, tuple(sets), tuple(tuple(a.set_text(v) for v in a.values) for a in axes),
-               bag, partial, start, tuple(fast) if len(fast) == len(axes) else ())
+               bag, partial, stamp, start, tuple(fast) if len(fast) == len(axes) else ())
     n = math.prod(len(a.values) for a in axes)
     workers = min(jobs or _cores(), n) if dask is None else 0
-    chunk = chunk_points or max(1, min(200, math.ceil(n / (max(workers, 2) * 8))))
+    # Chunks of up to 200 points (about a second of Fig. 8), eight or more per local worker
+    # (the load evens out, the progress bar moves); on Dask, for a cluster of any size.
+    share = n / (workers * 8) if workers else n / 256
+    chunk = chunk_points or max(1, min(200, math.ceil(share)))
     chunks = [(a, min(a + chunk, n)) for a in range(0, n, chunk)]
     points: list[dict[str, Any] | None] = [None] * n
     bar = _progress_bar(n, progress, 'pt')
