@@ -31,15 +31,6 @@ def json_out(capfd, argv, status=0):
 
 
 @pytest.fixture(scope='module')
-def cluster():
-    from distributed import LocalCluster
-
-    with LocalCluster(host='127.0.0.1', n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as local:
-        yield local
-
-
-@pytest.fixture(scope='module')
 def two_bags(reference_bag, tmp_path_factory):
     copy = tmp_path_factory.mktemp('bags') / 'copy'
     shutil.copytree(reference_bag, copy)
@@ -130,7 +121,7 @@ def test_replay_of_several_sessions_prints_a_row_each_and_the_totals(capfd, two_
     assert [int(r[-1]) for r in rows] == [direct.differing_overrides] * 2 + [
         2 * direct.differing_overrides]
     assert rows[2][:5] == ['total', '(2', 'of', '2)', '2400']
-    js = json_out(capfd, ['replay', *two_bags, *sets, '--json'])
+    js = json_out(capfd, ['replay', *two_bags, *sets, '--jobs', '1', '--json'])
     assert [s['session'] for s in js['sessions']] == two_bags
     assert js['sessions'][0]['metrics'] == direct.rerun
     assert js['totals']['comparison']['differing_overrides'] == 2 * direct.differing_overrides
@@ -151,9 +142,9 @@ def test_publish_plays_one_session(capfd, two_bags):
     assert '--publish plays one session' in capfd.readouterr().err
 
 
-def test_sweep_and_replay_on_dask_are_the_local_ones(capfd, cluster, fig8, reference_bag,
+def test_sweep_and_replay_on_dask_are_the_local_ones(capfd, dask_cluster, fig8, reference_bag,
                                                     two_bags):
-    address = cluster.scheduler_address
+    address = dask_cluster.scheduler_address
     local = json_out(capfd, sweep_argv(fig8, '--jobs', '1', '--json'))
     on_dask = json_out(capfd, sweep_argv(fig8, '--dask', address, '--json'))
     assert on_dask['ran_on'] == f'dask {address}'

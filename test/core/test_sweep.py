@@ -47,16 +47,6 @@ def swept(short_fig8):
     return sweep(short_fig8, GRID, jobs=1, progress=False)
 
 
-@pytest.fixture(scope='module')
-def cluster():
-    """Two worker processes on 127.0.0.1, closed when the module's tests are done."""
-    from distributed import LocalCluster
-
-    with LocalCluster(host='127.0.0.1', n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as local:
-        yield local
-
-
 def metrics_of(row):
     return {name: row[name] for name in METRIC_NAMES}
 
@@ -315,21 +305,21 @@ def test_several_sessions_replay_as_each_does_alone(two_bags, tmp_path):
 
 # -- Dask -------------------------------------------------------------------------------------
 
-def test_a_sweep_on_dask_is_the_local_one(cluster, swept, short_fig8, reference_bag):
-    on_dask = sweep(short_fig8, GRID, dask=cluster.scheduler_address, progress=False)
+def test_a_sweep_on_dask_is_the_local_one(dask_cluster, swept, short_fig8, reference_bag):
+    on_dask = sweep(short_fig8, GRID, dask=dask_cluster.scheduler_address, progress=False)
     assert on_dask.table == swept.table
-    assert on_dask.ran_on == f'dask {cluster.scheduler_address}'
+    assert on_dask.ran_on == f'dask {dask_cluster.scheduler_address}'
     grid = ['force_estimator.kalman_force_noise_n=2.0,8.0']
     local = sweep(None, grid, replay=reference_bag, jobs=1, progress=False)
-    assert sweep(None, grid, replay=reference_bag, dask=cluster.scheduler_address,
+    assert sweep(None, grid, replay=reference_bag, dask=dask_cluster.scheduler_address,
                  progress=False).table == local.table
 
 
-def test_several_sessions_on_dask_are_the_local_replays(cluster, two_bags):
+def test_several_sessions_on_dask_are_the_local_replays(dask_cluster, two_bags):
     from distributed import Client
 
     sets = ['force_estimator.kalman_force_noise_n=4.0']
-    with Client(cluster) as client:
+    with Client(dask_cluster) as client:
         on_dask = replay_sessions(two_bags, sets, dask=client)
     assert on_dask == replay_sessions(two_bags, sets, jobs=1)
 
