@@ -716,7 +716,8 @@ def sweep(experiment: Experiment | str | Path | None, grid: GridSpec, *,
     (:data:`BETTER` says which way). ``jobs``: local processes (default: every core; 1: this
     process). ``dask``: a scheduler's address or a ``distributed.Client``, instead of local
     processes. ``progress``: a progress bar on stderr once the sweep has run a second.
-    ``partial``: read a session that misses messages.
+    ``partial``: read a session that misses messages. ``chunk_points``: points per task
+    (default: up to 200, at least eight tasks per local process).
 
     Grid errors, and values outside a setting's range, raise :class:`ConfigError` before
     anything runs.
