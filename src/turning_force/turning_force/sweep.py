@@ -727,12 +727,13 @@ def sweep(experiment: Experiment | str | Path | None, grid: GridSpec, *,
     if metric not in BETTER:
         raise ConfigError(f'--metric {metric!r}: not a metric; known: {", ".join(METRIC_NAMES)}')
     bag: str | None = None
-    stamp = 0
+    shown, stamp = '', 0
     if replay is not None:
         from turning_force.session.reader import Session, read_session
 
         session = replay if isinstance(replay, Session) else read_session(replay, partial)
-        bag = str(session.path)
+        shown = str(session.path)
+        bag = str(Path(shown).resolve())   # the workers' working folder may be another
         stamp = _bag_stamp(bag)
         _SESSIONS.clear()
         _SESSIONS[(bag, partial, stamp)] = session   # this process's points use it as read
@@ -798,8 +799,8 @@ def sweep(experiment: Experiment | str | Path | None, grid: GridSpec, *,
         row['kernel'] = point.get('kernel', '')
         row['error'] = point.get('error', '')
         table.append(row)
-    return SweepResult(tuple(axes), table, metric, base.run.name, tuple(sets), bag or '',
-                       ran_on, time.perf_counter() - start_s)
+    return SweepResult(tuple(axes), table, metric, base.run.name, tuple(sets),
+                       shown if bag else '', ran_on, time.perf_counter() - start_s)
 
 
 # -- many sessions, one set of changes ------------------------------------------------------
@@ -836,9 +837,9 @@ class _ReplayJob:
     partial: bool
 
 
-def _replay_bag(job: _ReplayJob, bag: str) -> SessionReplay:
+def _replay_bag(job: _ReplayJob, bag: str, shown: str) -> SessionReplay:
     """One session through :func:`turning_force.session.replay.replay`; an error is kept as
-    the session's, not raised (the other sessions go on)."""
+    the session's, not raised (the other sessions go on). ``shown``: the path as given."""
     from turning_force.core.overlay import with_parameters_file
     from turning_force.session.reader import read_session
     from turning_force.session.replay import replay
@@ -856,14 +857,14 @@ def _replay_bag(job: _ReplayJob, bag: str) -> SessionReplay:
             session.experiment = with_parameters_file(session.experiment, file)
         result = replay(session, job.sets)
     except Exception as exc:   # this session's error, reported with it
-        return SessionReplay(bag, error=_error_text(exc))
+        return SessionReplay(shown, error=_error_text(exc).replace(bag, shown))
     comparison = {'max_force_difference_n': result.max_force_difference_n,
                   'max_request_difference_pct': result.max_request_difference_pct,
                   'differing_overrides': result.differing_overrides,
                   'differing_reasons': result.differing_reasons,
                   'blocks': len(session.blocks)}
-    return SessionReplay(str(session.path), len(session.blocks), dict(result.rerun),
-                         dict(result.recorded), comparison, session.warning)
+    return SessionReplay(shown, len(session.blocks), dict(result.rerun),
+                         dict(result.recorded), comparison, session.warning.replace(bag, shown))
 
 
 def replay_sessions(bags: Iterable[str | Path], sets: Sequence[str] = (), *,
@@ -877,7 +878,11 @@ def replay_sessions(bags: Iterable[str | Path], sets: Sequence[str] = (), *,
     paths = [str(b) for b in bags]
     for text in sets:
         parse_set(text)   # a malformed --set is the command's error, not every session's
-    job = _ReplayJob(tuple(sets), experiment, tuple(str(p) for p in params), partial)
+    # Absolute paths for the workers (a Dask worker's working folder is its own); the
+    # sessions named as given.
+    job = _ReplayJob(tuple(sets), experiment, tuple(str(Path(p).resolve()) for p in params),
+                     partial)
+    calls = [(str(Path(p).resolve()), p) for p in paths]
     out: list[SessionReplay | None] = [None] * len(paths)
     bar = _progress_bar(len(paths), progress, 'session')
 
@@ -887,9 +892,9 @@ def replay_sessions(bags: Iterable[str | Path], sets: Sequence[str] = (), *,
 
     try:
         if dask is not None:
-            _map_dask(dask, _replay_bag, [(p,) for p in paths], job, done)
+            _map_dask(dask, _replay_bag, calls, job, done)
         else:
-            _map_local(_replay_bag, [(job, p) for p in paths],
+            _map_local(_replay_bag, [(job, *call) for call in calls],
                        min(jobs or _cores(), len(paths)), done)
     finally:
         bar.close()
