@@ -79,3 +79,15 @@ def spin_until(executor: Any) -> Callable[..., bool]:
         return True
 
     return spin
+
+
+@pytest.fixture(scope='session')
+def dask_cluster() -> Iterator[Any]:
+    """A Dask cluster of two worker processes on 127.0.0.1 (test/core/test_sweep.py and
+    test/cli/test_sweep_cli.py run the sweep and the replay of many sessions on it against the
+    local run), started once and closed at the end of the session."""
+    from distributed import LocalCluster
+
+    with LocalCluster(host='127.0.0.1', n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster:
+        yield cluster

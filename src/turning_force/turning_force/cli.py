@@ -9,6 +9,11 @@
   controller and quantiser
   re-run on the recorded currents; recorded and re-run side by side. ``--publish [--rate R]``
   plays the bag's sensor topics into a live graph instead.
+- ``replay BAG BAG ... [--set ...] [--jobs N] [--dask ADDRESS] [--json]``: many sessions with
+  the same changes, on local processes or a Dask cluster: one row per session and the totals.
+- ``sweep EXPERIMENT --grid node.param=START:STOP:N ... [--replay BAG] [--metric NAME]
+  [--top K] [--out FILE.csv|.parquet] [--figure FILE.png] [--jobs N] [--dask ADDRESS]``:
+  every combination of the grid (turning_force.sweep), the best printed.
 - ``report BAG [--out FILE.png|FILE.html]``: the paper-style figure and the metrics.
 - ``calibrate BAG BAG ... [--settle-s S] [--json]``: friction (Park Eq. 25) from air-cut
   sessions at two or more feeds, printed as ``force_estimator`` parameters.
@@ -201,14 +206,17 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _replay(args: argparse.Namespace) -> int:
+    if len(args.bags) > 1 or args.dask:
+        return _replay_many(args)
     from turning_force.session.reader import read_session
 
-    session = read_session(args.bag, args.partial)
+    bag = args.bags[0]
+    session = read_session(bag, args.partial)
     _warn(session)
     if args.publish:
         from turning_force.session.play import play
 
-        play(Path(args.bag), args.rate, partial=args.partial)
+        play(Path(bag), args.rate, partial=args.partial)
         return 0
     from turning_force.session.replay import replay
     from turning_force.session.run import print_progress
@@ -227,25 +235,201 @@ def _replay(args: argparse.Namespace) -> int:
                   'differing_overrides': result.differing_overrides,
                   'differing_reasons': result.differing_reasons,
                   'blocks': len(session.blocks)}
+    _print_replay(args, str(session.path), result.recorded, result.rerun, comparison)
+    return 0
+
+
+def _print_replay(args: argparse.Namespace, path: str, recorded: dict[str, float],
+                  rerun: dict[str, float], comparison: dict[str, Any]) -> None:
+    """One session's replay: recorded and re-run metrics side by side, and how far apart."""
+    blocks = comparison['blocks']
     if args.json:
-        print(json.dumps({'session': str(session.path), 'sets': list(args.set),
-                          'metrics': result.rerun, 'recorded_metrics': result.recorded,
-                          'comparison': comparison}))
-        return 0
-    print(f'{session.path}: {len(session.blocks)} blocks replayed open loop'
+        print(json.dumps({'session': path, 'sets': list(args.set), 'metrics': rerun,
+                          'recorded_metrics': recorded, 'comparison': comparison}))
+        return
+    print(f'{path}: {blocks} blocks replayed open loop'
           + (f' with {", ".join(args.set)}' if args.set else ' unchanged'))
-    if result.recorded or result.rerun:
+    if recorded or rerun:
         print(f'  {"metric (estimated force)":28s} {"recorded":>10s} {"re-run":>10s}')
         for name in METRIC_NAMES:
-            print(f'  {name:28s} {result.recorded.get(name, math.nan):10.3f} '
-                  f'{result.rerun.get(name, math.nan):10.3f}')
+            print(f'  {name:28s} {recorded.get(name, math.nan):10.3f} '
+                  f'{rerun.get(name, math.nan):10.3f}')
     else:
         print('  no cut in this session (an air cut): no force metrics')
-    print(f'  force estimates differ by at most {result.max_force_difference_n:.3g} N; '
-          f'requests by {result.max_request_difference_pct:.3g} %; '
-          f'{result.differing_overrides} of {len(session.blocks)} overrides and '
-          f'{result.differing_reasons} gate reasons differ')
+    print(f'  force estimates differ by at most {comparison["max_force_difference_n"]:.3g} N; '
+          f'requests by {comparison["max_request_difference_pct"]:.3g} %; '
+          f'{comparison["differing_overrides"]} of {blocks} overrides and '
+          f'{comparison["differing_reasons"]} gate reasons differ')
+
+
+def _replay_many(args: argparse.Namespace) -> int:
+    """Several sessions (or one on a Dask cluster), replayed with the same changes: one row
+    per session and the totals; a session that fails is its row's error, a line on stderr,
+    and exit status 2 once the others are done."""
+    from turning_force.core.overlay import read_parameters
+    from turning_force.sweep import replay_sessions, replay_totals
+
+    if args.publish:
+        raise TurningForceError('--publish plays one session; give one BAG, without --dask')
+    for file in args.params:
+        read_parameters(file)   # a bad file is the command's error, not every session's
+    experiment = load_experiment(args.experiment) if args.experiment else None
+    results = replay_sessions(args.bags, args.set, experiment=experiment, params=args.params,
+                              partial=args.partial, jobs=args.jobs, dask=args.dask,
+                              progress=_progress(args))
+    for r in results:
+        if r.warning:
+            print(f'turning-force: warning: {r.warning}', file=sys.stderr)
+    failed = [r for r in results if r.error]
+    if len(results) == 1 and not failed:
+        r = results[0]
+        _print_replay(args, r.session, r.recorded_metrics, r.metrics, r.comparison)
+    elif args.json:
+        print(json.dumps({'sets': list(args.set),
+                          'sessions': [r.to_json(args.set) for r in results],
+                          'totals': replay_totals(results)}))
+    else:
+        _print_replay_table(args, results, replay_totals(results))
+    for r in failed:
+        print(f'turning-force: {r.error}', file=sys.stderr)
+    return 2 if failed else 0
+
+
+def _print_replay_table(args: argparse.Namespace, results: Sequence[Any],
+                        totals: dict[str, Any]) -> None:
+    steady, ripple = 'steady_mean_abs_error_n', 'ripple_p2p_n'
+    print(f'{len(results)} sessions replayed open loop'
+          + (f' with {", ".join(args.set)}' if args.set else ' unchanged')
+          + ' (metrics on the estimated force; --json for all of them)')
+    width = max(12, *(len(r.session) for r in results))
+    print(f'  {"session":{width}s} {"blocks":>7s}  {"steady error [N]":>17s}  '
+          f'{"ripple p2p [N]":>17s}  {"force diff":>10s}  {"overrides":>9s}')
+    print(f'  {"":{width}s} {"":7s}  {"recorded":>8s} {"re-run":>8s}  {"recorded":>8s} '
+          f'{"re-run":>8s}  {"max [N]":>10s}  {"differ":>9s}')
+
+    def line(label: str, blocks: int, recorded: dict[str, float], rerun: dict[str, float],
+             comparison: dict[str, Any]) -> str:
+        return (f'  {label:{width}s} {blocks:7d}  {recorded.get(steady, math.nan):8.3f} '
+                f'{rerun.get(steady, math.nan):8.3f}  {recorded.get(ripple, math.nan):8.3f} '
+                f'{rerun.get(ripple, math.nan):8.3f}  '
+                f'{comparison["max_force_difference_n"]:10.3g}  '
+                f'{comparison["differing_overrides"]:9d}')
+
+    for r in results:
+        if r.error:
+            print(f'  {r.session:{width}s} failed: {r.error}')
+        else:
+            print(line(r.session, r.blocks, r.recorded_metrics, r.metrics, r.comparison))
+    done = totals['sessions'] - totals['failed']
+    print(line(f'total ({done} of {totals["sessions"]})', totals['blocks'],
+               totals['recorded_metrics'], totals['metrics'], totals['comparison']))
+    print('  (total: steady error a mean weighted by blocks, ripple and force difference the '
+          'largest, overrides added up)')
+
+
+def _progress(args: argparse.Namespace) -> bool:
+    """A progress bar for a terminal, not for a log or --json."""
+    return not args.json and sys.stderr.isatty()
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from turning_force.sweep import BETTER, parse_grid, sweep
+
+    axes = parse_grid(args.grid)   # the grid's syntax before any file is read
+    if args.top < 1:
+        raise TurningForceError(f'--top {args.top}: need at least 1')
+    if args.jobs is not None and args.jobs < 1:
+        raise TurningForceError(f'--jobs {args.jobs}: need at least 1')
+    for flag, path, suffixes in (('--out', args.out, ('.csv', '.parquet')),
+                                 ('--figure', args.figure, ('.png', '.svg', '.pdf'))):
+        if path is None:
+            continue
+        if Path(path).suffix.lower() not in suffixes:
+            raise TurningForceError(f'{flag} {path}: write {" or ".join(suffixes)}')
+        _check_writable(Path(path), flag, new=False)
+    if args.replay:
+        from turning_force.session.reader import read_session
+
+        session = read_session(args.replay, args.partial)
+        _warn(session)
+        experiment = (load_experiment(args.experiment) if args.experiment
+                      else session.experiment)
+        if experiment is None:
+            raise TurningForceError(f'{session.path}: no recorded parameters to replay with; '
+                                    'give EXPERIMENT')
+        for file in args.params:
+            experiment = with_parameters_file(experiment, file)
+        replayed: Any = session
+    elif args.experiment:
+        experiment = _load(args.experiment, args.params, [])
+        replayed = None
+    else:
+        raise TurningForceError('sweep: give EXPERIMENT, or --replay BAG')
+    result = sweep(experiment, axes, replay=replayed, sets=args.set, metric=args.metric,
+                   jobs=args.jobs, dask=args.dask, progress=_progress(args),
+                   partial=args.partial)
+    if args.out:
+        result.write(args.out)
+    if args.figure:
+        result.figure(args.figure)
+    best = result.best(k=args.top)
+    failed = result.errors
+    if args.json:
+        print(json.dumps({
+            'experiment': result.experiment, 'replayed': result.replayed or None,
+            'grid': {a.name: list(a.values) for a in axes}, 'sets': list(args.set),
+            'points': len(result.table), 'errors': len(failed), 'ran_on': result.ran_on,
+            'wall_s': result.wall_s, 'metric': args.metric, 'better': BETTER[args.metric],
+            'best': [{**row, 'sets': result.point_sets(row)} for row in best],
+            'table': args.out, 'figure': args.figure}, default=list))
+    else:
+        _print_sweep(args, result, best)
+    if not best:
+        first = f'; the first: {failed[0]["error"]}' if failed else ''
+        raise TurningForceError(f'sweep: no point has a number for {args.metric} '
+                                f'({len(failed)} of {len(result.table)} points failed{first})')
     return 0
+
+
+def _print_sweep(args: argparse.Namespace, result: Any, best: list[dict[str, Any]]) -> None:
+    from turning_force.sweep import BETTER
+
+    axes = result.axes
+    shape = ' x '.join(f'{len(a.values)} {a.name}' for a in axes)
+    where = (f'open loop on {result.replayed}' if result.replayed
+             else 'closed loop on the simulator')
+    print(f'{result.experiment}: {len(result.table)} points ({shape}), {where}, on '
+          f'{result.ran_on}: {result.wall_s:.1f} s')
+    if args.set:
+        print(f'  with {", ".join(args.set)}')
+    metric = args.metric
+    print(f'best by {metric} ({BETTER[metric]} is better):')
+    widths = [max(len(a.name), 8) for a in axes]
+    print('  rank  ' + '  '.join(f'{a.name:>{w}s}' for a, w in zip(axes, widths, strict=True))
+          + f'  {metric:>{max(len(metric), 10)}s}  kernel')
+    for rank, row in enumerate(best, 1):
+        cells = '  '.join(f'{_cell(row[a.name]):>{w}s}' for a, w in zip(axes, widths,
+                                                                         strict=True))
+        print(f'  {rank:4d}  {cells}  {row[metric]:>{max(len(metric), 10)}.4f}  '
+              f'{row["kernel"]}')
+    if best:
+        sets = ' '.join(f"--set '{t}'" for t in result.point_sets(best[0]))
+        command = (f'turning-force replay {result.replayed}' if result.replayed
+                   else f'turning-force run {args.experiment}')
+        params = ''.join(f' --params {p}' for p in args.params)
+        print(f'  the best again: {command}{params} {sets}')
+    failed = result.errors
+    if failed:
+        print(f'{len(failed)} of {len(result.table)} points failed (the table has each '
+              f'error); the first: {failed[0]["error"]}')
+    if args.out:
+        print(f'table:  {args.out}')
+    if args.figure:
+        print(f'figure: {args.figure}')
+
+
+def _cell(value: Any) -> str:
+    return f'{value:.6g}' if isinstance(value, float) else str(value)
 
 
 def _report(args: argparse.Namespace) -> int:
@@ -514,6 +698,13 @@ def build_parser() -> argparse.ArgumentParser:
                              help='read a session that misses messages (what it misses is '
                              'printed) instead of refusing it')
 
+    def add_parallel(command: argparse.ArgumentParser, what: str) -> None:
+        command.add_argument('--jobs', type=int, metavar='N',
+                             help=f'local processes for the {what} (default: one per core)')
+        command.add_argument('--dask', metavar='SCHEDULER_ADDRESS',
+                             help=f'run the {what} on a Dask cluster instead (pip install '
+                             "'turning_force[dask]', on the workers too)")
+
     run = commands.add_parser('run', help='run an experiment through the graph, recorded')
     run.add_argument('experiment', help='ROS 2 parameters file (config/experiments/*.yaml)')
     run.add_argument('--out', help='session folder to create (default bags/<name>_<time>)')
@@ -523,18 +714,42 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument('--core', action='store_true', help='the ROS-free core loop, no session')
     run.set_defaults(handler=_run)
 
-    rep = commands.add_parser('replay', help='re-run estimator and controller on a session')
-    rep.add_argument('bag', help='session folder (rosbag2, MCAP)')
+    rep = commands.add_parser('replay', help='re-run estimator and controller on sessions')
+    rep.add_argument('bags', nargs='+', metavar='BAG',
+                     help='session folder (rosbag2, MCAP); several: one row each and totals')
     rep.add_argument('--experiment', help='settings to start from, for a session that embeds '
                      'none (default: the recorded ones)')
     add_params(rep)
     add_set(rep)
     rep.add_argument('--json', action='store_true', help='print one JSON object')
     rep.add_argument('--publish', action='store_true',
-                     help='play the sensor topics into a live graph instead')
+                     help='play the sensor topics into a live graph instead (one BAG)')
     rep.add_argument('--rate', type=float, default=1.0, help='playback rate with --publish')
     add_partial(rep)
+    add_parallel(rep, 'sessions')
     rep.set_defaults(handler=_replay)
+
+    swp = commands.add_parser('sweep', help='every combination of a grid of settings, '
+                              'closed loop or on a session; the best, a table and a heat map')
+    swp.add_argument('experiment', nargs='?', help='ROS 2 parameters file; with --replay: '
+                     'settings to start from instead of the recorded ones')
+    swp.add_argument('--grid', action='append', required=True,
+                     metavar='NODE.PARAM=START:STOP:N',
+                     help='one axis (repeatable): START:STOP:N evenly spaced, START:STOP:Nlog '
+                     'log-spaced, or v1,v2,... (values read as YAML)')
+    swp.add_argument('--replay', metavar='BAG', help="open loop on this session's recorded "
+                     'currents instead of the simulator')
+    add_params(swp)
+    add_set(swp)
+    swp.add_argument('--metric', default='steady_mean_abs_error_n', choices=METRIC_NAMES,
+                     help='what the best are ranked by (default: steady_mean_abs_error_n)')
+    swp.add_argument('--top', type=int, default=5, help='how many of the best to print')
+    swp.add_argument('--out', help='the whole table: .csv or .parquet')
+    swp.add_argument('--figure', help='heat map of the metric over the first two axes (.png)')
+    swp.add_argument('--json', action='store_true', help='print one JSON object')
+    add_partial(swp)
+    add_parallel(swp, 'points')
+    swp.set_defaults(handler=_sweep)
 
     report = commands.add_parser('report', help='the figure and metrics of a session')
     report.add_argument('bag', help='session folder (rosbag2, MCAP)')
