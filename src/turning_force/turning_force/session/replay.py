@@ -96,12 +96,11 @@ def replay(session: Session, sets: Sequence[str] = (),
 
 
 def _currents(session: Session) -> CurrentArrays | list[CurrentBlock]:
-    """The session's currents as arrays (one ``np.stack``), or its blocks where they differ in
-    length or sample period (those replay in Python)."""
-    try:
-        return CurrentArrays.from_blocks(session.blocks)
-    except ValueError:
-        return session.blocks
+    """The session's currents as the reader holds them (arrays), or its blocks where they
+    differ in length or sample period (those replay in Python)."""
+    if session.currents is not None:
+        return session.currents
+    return list(session.blocks)
 
 
 def _inputs(session: Session) -> InputArrays:
