@@ -155,13 +155,14 @@ def _run(args: argparse.Namespace) -> int:
     experiment = _load(args.experiment, args.params, args.set)
     if args.core and args.out:
         from turning_force.session.core_session import record_core
-        from turning_force.session.run import print_progress
 
         bag = Path(args.out)
         _check_writable(bag, '--out', new=True)
+        progress = None
+        if not args.json and sys.stderr.isatty():   # (session.run imports rclpy)
+            from turning_force.session.run import print_progress as progress
         with _signals(defer=False):
-            recorded = record_core(experiment, bag,
-                                   None if args.json else print_progress)
+            recorded = record_core(experiment, bag, progress)
         result = recorded.run.result
         metrics = result.metrics
         out: dict[str, Any] = {'experiment': experiment.run.name, 'kernel': result.kernel,
