@@ -45,7 +45,7 @@ def decoded(bag):
 
 
 def test_the_core_session_has_the_graphs_topics():
-    assert TOPICS == {f'/{t.lstrip("/")}': msgtype(c) for t, c in GRAPH_TOPICS.items()}
+    assert {f'/{t.lstrip("/")}': msgtype(c) for t, c in GRAPH_TOPICS.items()} == TOPICS
 
 
 def test_both_read_back_to_the_same_signals(sessions):
