@@ -158,9 +158,11 @@ def _run(args: argparse.Namespace) -> int:
 
         bag = Path(args.out)
         _check_writable(bag, '--out', new=True)
-        progress = None
+        progress: Callable[[int, int], None] | None = None
         if not args.json and sys.stderr.isatty():   # (session.run imports rclpy)
-            from turning_force.session.run import print_progress as progress
+            from turning_force.session.run import print_progress
+
+            progress = print_progress
         with _signals(defer=False):
             recorded = record_core(experiment, bag, progress)
         result = recorded.run.result
