@@ -24,8 +24,10 @@ import os
 import platform
 import time
 import zlib
+from collections import defaultdict
 from functools import cache
 from importlib.metadata import PackageNotFoundError, version
+from io import BytesIO
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +36,15 @@ import numpy.typing as npt
 import yaml
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.rosbag2.errors import WriterError
-from rosbags.rosbag2.storage_mcap import McapWriter
+from rosbags.rosbag2.storage_mcap import (
+    McapWriter,
+    PendingChunk,
+    write_record,
+    write_string,
+    write_uint16,
+    write_uint32,
+    write_uint64,
+)
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -109,18 +119,60 @@ def software_versions() -> dict[str, str]:
 class _CrcMcapWriter(McapWriter):
     """rosbags' MCAP storage, with each chunk's CRC-32 filled in where rosbags writes 0."""
 
-    # The CRC follows the opcode, the record length, the start and end times and the size.
-    CRC_OFFSET = 1 + 8 + 8 + 8 + 8
+    # The message index entries (log time, offset) of write_many, by channel, until the chunk
+    # closes.
+    _bulk: dict[int, list[npt.NDArray[np.uint64]]]
+
+    def __init__(self, path: Path, compression: CompressionMode) -> None:
+        super().__init__(path, compression)
+        self._bulk = {}
 
     def close_chunk(self) -> None:
-        crc = zlib.crc32(self.chunk.bio.getvalue())
-        start = self.bio.tell()
-        super().close_chunk()
-        end = self.bio.tell()
-        self.bio.seek(start + self.CRC_OFFSET)
-        self.bio.write(crc.to_bytes(4, 'little'))
-        self.bio.seek(end)
-
+        """rosbags' ``close_chunk`` with the CRC filled in, and the message indexes written as
+        arrays (a chunk holds thousands of messages)."""
+        chunk = self.chunk
+        crc = zlib.crc32(chunk.bio.getbuffer())
+        rec = BytesIO()
+        write_uint64(rec, chunk.message_start_time)
+        write_uint64(rec, chunk.message_end_time)
+        write_uint64(rec, chunk.bio.tell())
+        write_uint32(rec, crc)
+        compressed = self.compressor(chunk.bio.getvalue())
+        write_string(rec, self.compression)
+        write_uint64(rec, len(compressed))
+        rec.write(compressed)
+        chunk_start = self.bio.tell()
+        write_record(self.bio, 0x06, rec)
+        chunk_end = self.bio.tell()
+        offsets: list[tuple[int, int]] = []
+        bulk = self._bulk
+        for cid in sorted(set(chunk.msgs) | set(bulk)):
+            pairs = [np.asarray(chunk.msgs.get(cid, []), dtype=np.uint64).reshape(-1, 2),
+                     *bulk.get(cid, [])]
+            entries = np.concatenate(pairs)
+            entries = entries[np.argsort(entries[:, 1], kind='stable')]   # in file order
+            offsets.append((cid, self.bio.tell()))
+            rec = BytesIO()
+            write_uint16(rec, cid)
+            write_uint32(rec, entries.size * 8)
+            rec.write(entries.astype('<u8').tobytes())
+            write_record(self.bio, 0x07, rec)
+        rec = BytesIO()
+        write_uint64(rec, chunk.message_start_time)
+        write_uint64(rec, chunk.message_end_time)
+        write_uint64(rec, chunk_start)
+        write_uint64(rec, chunk_end - chunk_start)
+        write_uint32(rec, len(offsets) * 10)
+        for cid, offset in offsets:
+            write_uint16(rec, cid)
+            write_uint64(rec, offset)
+        write_uint64(rec, self.bio.tell() - chunk_end)
+        write_string(rec, self.compression)
+        write_uint64(rec, len(compressed))
+        write_uint64(rec, chunk.bio.tell())
+        self.chunks.append(rec)
+        self.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
+        self._bulk = {}
 
     def write_many(self, channels: npt.NDArray[np.int64], timestamps: npt.NDArray[np.int64],
                    data: npt.NDArray[np.uint8], offsets: npt.NDArray[np.int64]) -> None:
@@ -154,12 +206,12 @@ class _CrcMcapWriter(McapWriter):
         self.message_end_time = max(last, self.message_end_time)
         chunk.message_start_time = min(first, chunk.message_start_time)
         chunk.message_end_time = max(last, chunk.message_end_time)
-        at = (starts[:-1] + base).tolist()
-        stamps = timestamps.tolist()
+        at = (starts[:-1] + base).astype(np.uint64)
         for channel in np.unique(channels).tolist():
-            picked = np.flatnonzero(channels == channel).tolist()
-            self.channel_stats[channel] += len(picked)
-            chunk.msgs[channel].extend((stamps[k], at[k]) for k in picked)
+            picked = channels == channel
+            self.channel_stats[channel] += int(np.count_nonzero(picked))
+            self._bulk.setdefault(channel, []).append(
+                np.stack([timestamps[picked].astype(np.uint64), at[picked]], axis=1))
         if chunk.bio.tell() > 2**20:
             self.close_chunk()
 

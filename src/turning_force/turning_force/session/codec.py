@@ -509,10 +509,13 @@ def _join(parts: Sequence[np.ndarray[Any, Any]]) -> np.ndarray[Any, Any]:
 class TableBuilder:
     """Tables of one type appended chunk by chunk into arrays that grow (by half again when
     full: no list of pieces, no copy of everything at the end). ``expected``: the number of
-    messages to make room for at once (the session's count, when it is known)."""
+    messages to make room for at once (the session's count, when it is known); ``keep``: the
+    field paths to keep (default all)."""
 
-    def __init__(self, leaves: Sequence[Field], msgtype: str, expected: int = 0) -> None:
-        self.leaves = tuple(leaves)
+    def __init__(self, leaves: Sequence[Field], msgtype: str, expected: int = 0,
+                 keep: Iterable[str] | None = None) -> None:
+        kept = None if keep is None else set(keep)
+        self.leaves = tuple(leaf for leaf in leaves if kept is None or leaf.path in kept)
         self.msgtype = msgtype
         self.count = 0
         self._expected = max(expected, 1)
@@ -628,7 +631,15 @@ def encode(store: Typestore, msgtype: str, columns: Mapping[str, Any], count: in
     uniform = {path: bool(np.all(c == c[0])) if c.size else True for path, c in counts.items()}
     group_of = _group_ids(shape_columns, count)
     # Sequences of strings vary inside a shape: their element lengths join the key.
-    if any(leaf.kind == 'strings' for leaf in leaves) and count:
+    uniform_strings = all(uniform[leaf.path] for leaf in leaves if leaf.kind == 'strings')
+    if uniform_strings and count:   # as many strings each: their lengths as columns
+        columns_of_lengths = [group_of]
+        for leaf in leaves:
+            if leaf.kind == 'strings':
+                per = string_lengths[leaf.path].reshape(count, -1)
+                columns_of_lengths += [per[:, j] for j in range(per.shape[1])]
+        group_of = _group_ids(columns_of_lengths, count)
+    elif any(leaf.kind == 'strings' for leaf in leaves) and count:
         detail = []
         for leaf in leaves:
             if leaf.kind == 'strings':

@@ -32,6 +32,7 @@ from typing import Any, cast, overload
 import numpy as np
 import numpy.typing as npt
 import yaml
+from rosbags.interfaces import Nodetype
 from rosbags.typesys import (
     Stores,
     TypesysError,
@@ -75,6 +76,17 @@ MSGTYPES = {
     'control/feed_command': 'turning_force_msgs/msg/FeedCommand',
     'pmc/feed_override': 'turning_force_msgs/msg/FeedOverride',
     'sim/cutting_state': 'turning_force_msgs/msg/CuttingState',
+}
+# The fields of the answers that the signals (and the arming) come from; servo/currents and
+# pmc/cuts are kept whole.
+STAMP = ('header.stamp.sec', 'header.stamp.nanosec')
+KEPT = {
+    'force/estimate': (*STAMP, 'force_n', 'force_rate_n_s', 'status'),
+    'control/feed_command': (*STAMP, 'override_pct', 'reference_force_n', 'sliding_variable',
+                             'reference_reachable'),
+    'pmc/feed_override': (*STAMP, 'applied_pct', 'reason', 'armed', 'program_enable',
+                          'threading', 'operator_dial_pct', 'engaged', 'alarm', 'stop_request'),
+    'sim/cutting_state': (*STAMP, 'force_n', 'depth_of_cut_mm', 'feed_mm_rev', 'override_pct'),
 }
 SAFE_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)   # libyaml's where installed
 SHOWN = 3   # damaged stretches and gaps named in one line; the rest are counted
@@ -413,16 +425,36 @@ def session_typestore(definitions: tuple[tuple[str, str, str], ...]) -> Typestor
     MCAP's schemas hold them): a session recorded before a message gained a field decodes with
     the definition it was written with, as rosbags' AnyReader does it. Ours stand in for a type
     the session does not define."""
-    types = dict(typestore().fielddefs)
+    given: dict[str, Any] = {}
     for msgtype, encoding, text in definitions:
         if encoding == 'ros2msg':
-            types.update(get_types_from_msg(text, msgtype))
+            given.update(get_types_from_msg(text, msgtype))
         elif encoding == 'ros2idl':
             separator = '=' * 80 + '\n'
             parts = ([p.split('\n', 1)[1] for p in text.split(separator)[1:]]
                      if text.startswith(f'{separator}IDL: ') else [text])
             for idl in parts:
-                types.update(get_types_from_idl(idl))
+                given.update(get_types_from_idl(idl))
+    # The given types and those they use, no more: a store of every ROS type takes a second.
+    types: dict[str, Any] = {}
+    wanted = [t for t, _, _ in definitions] + list(given)
+    while wanted:
+        name = wanted.pop()
+        if name in types:
+            continue
+        if name in given:
+            types[name] = given[name]
+        else:   # ours (building the store of every ROS type only when it is needed)
+            ours = typestore().fielddefs
+            if name not in ours:
+                continue
+            types[name] = ours[name]
+        for _, (kind, detail) in types[name][1]:
+            inner = detail if kind == Nodetype.NAME else (
+                detail[0][1] if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE)
+                and detail[0][0] == Nodetype.NAME else None)
+            if isinstance(inner, str):
+                wanted.append(inner)
     store = get_typestore(Stores.EMPTY)
     store.register(types)
     return store
@@ -473,7 +505,7 @@ class _Decoder:
                                          "metadata.yaml's hash")
                 if codec.supports(store, topic.msgtype):
                     builder = TableBuilder(codec.fields(store, topic.msgtype), topic.msgtype,
-                                           topic.count or 0)
+                                           topic.count or 0, KEPT.get(relative))
                     found = (store, topic.msgtype, relative, builder)
                 else:
                     self.problems.append(f'{channel.topic}: {topic.msgtype} as the file '
@@ -485,7 +517,7 @@ class _Decoder:
              log_times: IntArray, offsets: IntArray, sizes: IntArray) -> None:
         """One chunk's messages (:data:`turning_force.session.scan.MessageSink`)."""
         del log_times
-        for index in np.unique(channels).tolist():
+        for index in np.flatnonzero(np.bincount(channels)).tolist():
             chosen = channels == index if channels.size > 1 else np.ones(1, dtype=bool)
             found = self._channel(scan, index, final=False)
             if found is None:

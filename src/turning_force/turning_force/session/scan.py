@@ -63,6 +63,9 @@ ZSTD_CHUNK_TAG_OFFSET = 1 + 8 + 8 + 8 + 8 + 4
 # A message record: channel id, sequence, log time, publish time; then the data.
 MESSAGE_HEADER = struct.Struct('<HIQQ')
 RECORD_HEADER = struct.Struct('<BQ')
+# Chunks up to this size whose zstd frame states the size the record does are decompressed in
+# one call; others (a damaged size may say anything) a piece at a time, never past the size.
+ONE_SHOT_BYTES = 1 << 28
 # What a damaged record makes a parser raise: short or garbled fields, bad text, bad compression.
 RECORD_ERRORS = (McapError, ValueError, struct.error, EOFError, OverflowError, MemoryError,
                  zstandard.ZstdError, RuntimeError)
@@ -111,11 +114,23 @@ class McapScan:
     counts: dict[int, int] = field(default_factory=dict)   # messages read, by channel id
 
 
+def _frame_size(data: bytes) -> int:
+    """The content size a zstd frame's header states (-1: none, or not a frame)."""
+    try:
+        return int(zstandard.frame_content_size(data))
+    except zstandard.ZstdError:
+        return -1
+
+
 def _decompress(chunk: Chunk) -> bytes:
     """A chunk's records, no more than its record says they are."""
     size = chunk.uncompressed_size
     if chunk.compression == '':
         data = chunk.data
+    elif (chunk.compression == 'zstd' and size <= ONE_SHOT_BYTES
+          and _frame_size(chunk.data) == size):
+        # The frame says what the record says: decompressed in one go, into one buffer.
+        data = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=size)
     elif chunk.compression == 'zstd':
         reader = zstandard.ZstdDecompressor().stream_reader(chunk.data, read_across_frames=False)
         pieces: list[bytes] = []
@@ -197,10 +212,50 @@ def _chunk_messages(data: bytes) -> tuple[list[Schema | Channel], IntArray, IntA
     return out, np.array(starts, dtype=np.int64), np.array(lengths, dtype=np.int64)
 
 
+def _indexed_messages(data: bytes, offsets: IntArray
+                      ) -> tuple[list[Schema | Channel], IntArray, IntArray] | None:
+    """:func:`_chunk_messages` from the chunk's message indexes (where each message record
+    starts): each must be a message record, and the bytes between them whole records of other
+    kinds (walked). None where they do not hold (the caller walks the chunk instead)."""
+    raw = np.frombuffer(data, dtype=np.uint8)
+    size = raw.size
+    starts = np.sort(offsets)
+    if starts.size > 1 and np.any(starts[1:] == starts[:-1]):
+        starts = np.unique(starts)
+    if not starts.size or starts[0] < 0 or starts[-1] + 9 > size:
+        return None
+    if np.any(raw[starts] != Opcode.MESSAGE):
+        return None
+    lengths = _little(raw, starts + 1, 8)
+    ends = starts + 9 + lengths
+    if np.any(lengths < MESSAGE_HEADER.size) or np.any(ends > size):
+        return None
+    gap_starts = np.concatenate([[0], ends])
+    gap_ends = np.concatenate([starts, [size]])
+    if np.any(gap_starts > gap_ends):
+        return None
+    records: list[Schema | Channel] = []
+    for k in np.flatnonzero(gap_starts < gap_ends).tolist():
+        try:
+            found, messages, _ = _chunk_messages(data[int(gap_starts[k]):int(gap_ends[k])])
+        except RECORD_ERRORS:
+            return None
+        if messages.size:   # messages the index does not list
+            return None
+        records += found
+    return records, starts, lengths
+
+
 def _little(raw: npt.NDArray[np.uint8], at: IntArray, width: int) -> IntArray:
-    """The unsigned little-endian integers of ``width`` bytes at ``at``."""
-    picked = raw[at[:, None] + np.arange(width)]
-    value: IntArray = picked.view(f'<u{width}').reshape(-1).astype(np.int64)
+    """The unsigned little-endian integers of ``width`` bytes at ``at`` (read through a view
+    of the bytes at each of the ``width`` alignments, not byte by byte)."""
+    value: IntArray = np.empty(at.size, dtype=np.int64)
+    residue = at % width
+    for r in np.flatnonzero(np.bincount(residue, minlength=width)).tolist():
+        picked = residue == r
+        view = np.frombuffer(raw, dtype=f'<u{width}', offset=r,
+                             count=(raw.size - r) // width)
+        value[picked] = view[(at[picked] - r) // width]
     return value
 
 
@@ -299,13 +354,28 @@ class _Scanner:
         return start
 
     def find_chunks(self, end: int) -> None:
-        """Offsets of our zstd chunk records, by their start pattern."""
-        at = self.data.find(ZSTD_CHUNK_TAG, ZSTD_CHUNK_TAG_OFFSET)
-        while 0 <= at < end:
-            start = at - ZSTD_CHUNK_TAG_OFFSET
-            if self.data[start] == Opcode.CHUNK:
-                self.known_chunks.add(start)
-            at = self.data.find(ZSTD_CHUNK_TAG, at + 1)
+        """Offsets of our zstd chunk records, by their start pattern (looked for a window at a
+        time, each let go of after: the file is not held in memory)."""
+        window = 1 << 24
+        for low in range(0, end, window):
+            high = min(low + window + len(ZSTD_CHUNK_TAG) - 1, end)
+            at = self.data.find(ZSTD_CHUNK_TAG, max(low, ZSTD_CHUNK_TAG_OFFSET), high)
+            while at >= 0:
+                start = at - ZSTD_CHUNK_TAG_OFFSET
+                if self.data[start] == Opcode.CHUNK:
+                    self.known_chunks.add(start)
+                at = self.data.find(ZSTD_CHUNK_TAG, at + 1, high)
+            self.release(low, min(low + window, end))
+
+    def release(self, start: int, end: int) -> None:
+        """Let the pages of a mapped file from ``start`` to ``end`` go (read once: a session
+        of hours is not kept resident)."""
+        if self.sink is None or not isinstance(self.data, mmap.mmap):
+            return
+        first = -(-start // mmap.PAGESIZE) * mmap.PAGESIZE
+        last = end // mmap.PAGESIZE * mmap.PAGESIZE
+        if last > first and hasattr(mmap, 'MADV_DONTNEED'):
+            self.data.madvise(mmap.MADV_DONTNEED, first, last - first)
 
     def chunk_by_its_fields(self, pos: int, limit: int) -> tuple[int, bytes] | None:
         """A known chunk whose record length is damaged: its extent from its own fields (the
@@ -322,10 +392,27 @@ class _Scanner:
         self.out.damage.append(f'chunk at byte {pos}: its record length is damaged')
         return Opcode.CHUNK, bytes(self.data[pos + 9:pos + 9 + length])
 
-    def chunk(self, pos: int, body: bytes) -> None:
+    def message_index(self, pos: int, limit: int) -> IntArray | None:
+        """Where a chunk's messages start, from the message index records after it (at
+        ``pos``); None where there are none or they are unreadable."""
+        found: list[IntArray] = []
+        while True:
+            record = self.record_at(pos, limit)
+            if record is None or record[0] != Opcode.MESSAGE_INDEX:
+                break
+            body = record[1]
+            if len(body) < 6 or 6 + int.from_bytes(body[2:6], 'little') != len(body) \
+                    or (len(body) - 6) % 16:
+                return None
+            found.append(np.frombuffer(body, dtype='<u8', offset=6)[1::2].astype(np.int64))
+            pos += 9 + len(body)
+        return np.concatenate(found) if found else None
+
+    def chunk(self, pos: int, body: bytes, index: IntArray | None = None) -> None:
         self.read_chunks.add(pos)
         if self.sink is not None:
-            self.streamed_chunk(pos, body)
+            self.streamed_chunk(pos, body, index)
+            self.release(pos, pos + 9 + len(body))
             return
         try:
             chunk = Chunk.read(_stream(body))
@@ -336,13 +423,16 @@ class _Scanner:
         for record in records:
             self.add(record, f'chunk at byte {pos}')
 
-    def streamed_chunk(self, pos: int, body: bytes) -> None:
-        """A chunk whose messages go to the sink as arrays."""
+    def streamed_chunk(self, pos: int, body: bytes, index: IntArray | None) -> None:
+        """A chunk whose messages go to the sink as arrays (found from its message index where
+        it has one, else by walking its records)."""
         assert self.sink is not None
         try:
             chunk = Chunk.read(_stream(body))
             data = _decompress(chunk)
-            records, starts, lengths = _chunk_messages(data)
+            indexed = _indexed_messages(data, index) if index is not None else None
+            records, starts, lengths = indexed if indexed is not None else \
+                _chunk_messages(data)
         except RECORD_ERRORS as exc:
             self.out.damage.append(f'chunk at byte {pos} ({9 + len(body)} bytes): {exc}')
             return
@@ -352,9 +442,9 @@ class _Scanner:
             return
         raw = np.frombuffer(data, dtype=np.uint8)
         channels = _little(raw, starts + 9, 2)
-        ids, counts = np.unique(channels, return_counts=True)
-        for channel, count in zip(ids.tolist(), counts.tolist(), strict=True):
-            self.out.counts[channel] = self.out.counts.get(channel, 0) + count
+        counts = np.bincount(channels)
+        for channel in np.flatnonzero(counts).tolist():
+            self.out.counts[channel] = self.out.counts.get(channel, 0) + int(counts[channel])
         self.sink(self.out, raw, channels, _little(raw, starts + 9 + 6, 8),
                   starts + 9 + MESSAGE_HEADER.size, lengths - MESSAGE_HEADER.size)
 
@@ -378,7 +468,9 @@ class _Scanner:
             if pos in self.known_chunks or opcode == Opcode.CHUNK:
                 if opcode != Opcode.CHUNK:
                     self.out.damage.append(f'byte {pos}: a chunk whose opcode was changed')
-                self.chunk(pos, body)
+                index = (self.message_index(pos + 9 + len(body), limit)
+                         if self.sink is not None else None)
+                self.chunk(pos, body, index)
             elif opcode in (Opcode.MESSAGE, Opcode.SCHEMA, Opcode.CHANNEL):
                 try:
                     record: Schema | Channel | Message = (
