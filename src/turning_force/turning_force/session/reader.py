@@ -20,7 +20,6 @@ a warning too.
 
 from __future__ import annotations
 
-import itertools
 import json
 from collections import Counter
 from collections.abc import Sequence
@@ -812,8 +811,7 @@ def _depth_change_times(session: Session, experiment: Experiment) -> list[float]
         return list(planned)
     depth, starts = session.signals['depth_mm'], session.t_s - _block_lengths_s(session)
     known = np.flatnonzero(np.isfinite(depth))
-    changed = [float(starts[b]) for a, b in itertools.pairwise(known)
-               if depth[a] != depth[b]]
+    changed = starts[known[1:][depth[known[:-1]] != depth[known[1:]]]].tolist()
     block_s = float(np.median(session.t_s[1:] - session.t_s[:-1])) if len(starts) > 1 else 0.0
     if all(any(abs(c - p) <= block_s for p in planned) for c in changed):
         return list(planned)   # on the plant's time line: the planned times, exactly
