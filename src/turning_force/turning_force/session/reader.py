@@ -811,7 +811,7 @@ def _depth_change_times(session: Session, experiment: Experiment) -> list[float]
         return list(planned)
     depth, starts = session.signals['depth_mm'], session.t_s - _block_lengths_s(session)
     known = np.flatnonzero(np.isfinite(depth))
-    changed = starts[known[1:][depth[known[:-1]] != depth[known[1:]]]].tolist()
+    changed: list[float] = starts[known[1:][depth[known[:-1]] != depth[known[1:]]]].tolist()
     block_s = float(np.median(session.t_s[1:] - session.t_s[:-1])) if len(starts) > 1 else 0.0
     if all(any(abs(c - p) <= block_s for p in planned) for c in changed):
         return list(planned)   # on the plant's time line: the planned times, exactly
