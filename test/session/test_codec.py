@@ -224,3 +224,21 @@ def test_the_table_builder_grows_and_keeps_the_order():
         builder.append(table)
     check_table(store, msgtype, builder.finish(), expected)
     assert builder.count == 7
+
+
+def test_decode_gives_the_fields_asked_for():
+    store = typestore()
+    msgtype = 'turning_force_msgs/msg/FeedOverride'
+    raws = []
+    for k in range(3):
+        columns = {'applied_pct': 10.0 * k, 'detail': 'x' * k, 'pmc_bits': np.ones((1, 4), bool)}
+        raw, _ = codec.encode(store, msgtype, columns, 1)
+        raws.append(raw)
+    data = np.frombuffer(b''.join(raws), dtype=np.uint8)
+    sizes = np.array([len(r) for r in raws])
+    table, index = codec.decode(store, msgtype, data,
+                                np.concatenate([[0], np.cumsum(sizes)[:-1]]), sizes,
+                                keep=['applied_pct', 'reason'])
+    assert index.tolist() == [0, 1, 2]
+    assert set(table.columns) == {'applied_pct', 'reason'}
+    assert table.columns['applied_pct'].tolist() == [0.0, 10.0, 20.0]

@@ -327,15 +327,18 @@ def _layout(leaves: Sequence[Field], raw: UInt8Array) -> list[Entry]:
 
 
 def decode(store: Typestore, msgtype: str, data: UInt8Array, offsets: IntArray,
-           sizes: IntArray) -> tuple[Table, IntArray]:
+           sizes: IntArray, keep: Iterable[str] | None = None) -> tuple[Table, IntArray]:
     """The messages ``data[offsets[i]:offsets[i] + sizes[i]]`` of ``msgtype``, as a
     :class:`Table` of those that decode, and the indices (into ``offsets``) of those.
 
     Messages that share a size and a layout are read through one structured view; a message
     the layout walk refuses goes to rosbags' ``deserialize_cdr``, and is left out if that
-    refuses it too (a damaged message: the caller counts them).
+    refuses it too (a damaged message: the caller counts them). ``keep``: the field paths to
+    give (default all; the others are still checked, not copied out).
     """
     leaves = fields(store, msgtype)
+    wanted = None if keep is None else frozenset(keep)
+    out_leaves = leaves if wanted is None else tuple(f for f in leaves if f.path in wanted)
     parts: list[tuple[IntArray, Table]] = []
     odd: list[int] = []
     if sizes.size and np.all(sizes == sizes[0]):
@@ -368,7 +371,7 @@ def decode(store: Typestore, msgtype: str, data: UInt8Array, offsets: IntArray,
                 same = np.all(rows[pending][:, checks] == rows[first, checks], axis=1)
                 members, pending = pending[same], pending[~same]
             parts.append((group[members], _read(leaves, msgtype, entries, rows, members,
-                                                size)))
+                                                size, wanted)))
         else:
             if pending is not None:
                 odd += group[pending].tolist()
@@ -378,12 +381,12 @@ def decode(store: Typestore, msgtype: str, data: UInt8Array, offsets: IntArray,
             message = store.deserialize_cdr(raw, msgtype)
         except DECODE_ERRORS:
             continue
-        parts.append((np.array([odd_index], dtype=np.int64), _from_object(leaves, msgtype,
+        parts.append((np.array([odd_index], dtype=np.int64), _from_object(out_leaves, msgtype,
                                                                           message)))
     if not parts:
-        return _empty_table(leaves, msgtype, 0), np.zeros(0, dtype=np.int64)
+        return _empty_table(out_leaves, msgtype, 0), np.zeros(0, dtype=np.int64)
     index = np.concatenate([p[0] for p in parts])
-    table = _concat(leaves, msgtype, [p[1] for p in parts])
+    table = _concat(out_leaves, msgtype, [p[1] for p in parts])
     if index.size > 1 and not np.all(index[1:] > index[:-1]):
         order = np.argsort(index, kind='stable')
         table, index = table.take(order), index[order]
@@ -418,8 +421,10 @@ def _covered(starts: IntArray, size: int, total: int) -> npt.NDArray[np.bool_]:
 
 
 def _read(leaves: Sequence[Field], msgtype: str, entries: Sequence[Entry],
-          rows: UInt8Array, members: IntArray, size: int) -> Table:
-    """The messages ``rows[members]`` (each ``size`` bytes, of one layout) as a table."""
+          rows: UInt8Array, members: IntArray, size: int,
+          wanted: frozenset[str] | None = None) -> Table:
+    """The messages ``rows[members]`` (each ``size`` bytes, of one layout) as a table (of the
+    ``wanted`` fields only, where given)."""
     n = int(members.size)
     dtype, picked = _structured(leaves, entries, size)
     picked_rows = rows if n == rows.shape[0] else rows[members]
@@ -429,10 +434,12 @@ def _read(leaves: Sequence[Field], msgtype: str, entries: Sequence[Entry],
         view = picked_rows.view(dtype).reshape(n)
     else:
         view = np.ascontiguousarray(picked_rows).view(dtype).reshape(n)
-    table = _empty_table(leaves, msgtype, n)
+    table = _empty_table([f for f in leaves if wanted is None or f.path in wanted], msgtype, n)
     strings: dict[int, list[np.ndarray[Any, Any]]] = {}
     for index, _, name, count in picked:
         leaf = leaves[index]
+        if wanted is not None and leaf.path not in wanted:
+            continue
         if leaf.kind == 'value':
             table.columns[leaf.path] = view[name].copy() if name else table.columns[leaf.path]
         elif leaf.kind == 'string':
@@ -449,7 +456,7 @@ def _read(leaves: Sequence[Field], msgtype: str, entries: Sequence[Entry],
             strings.setdefault(index, []).append(view[name] if name
                                                  else np.zeros(n, dtype='S1'))
     for index, leaf in enumerate(leaves):
-        if leaf.kind != 'strings':
+        if leaf.kind != 'strings' or (wanted is not None and leaf.path not in wanted):
             continue
         elements = strings.get(index, [])
         table.lengths[leaf.path] = np.full(n, len(elements), dtype=np.int64)

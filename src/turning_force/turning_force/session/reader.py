@@ -529,7 +529,8 @@ class _Decoder:
     def _decode(self, found: tuple[Typestore, str, str, TableBuilder],
                 data: npt.NDArray[np.uint8], offsets: IntArray, sizes: IntArray) -> None:
         store, msgtype, relative, builder = found
-        table, read = codec.decode(store, msgtype, data, offsets, sizes)
+        table, read = codec.decode(store, msgtype, data, offsets, sizes,
+                                   (f.path for f in builder.leaves))
         builder.append(table)
         if read.size < offsets.size:
             self.failed[relative] += int(offsets.size - read.size)
