@@ -651,34 +651,27 @@ def _blocks(table: Table | None) -> tuple[CurrentArrays | None, list[CurrentBloc
     return None, blocks, last, problems
 
 
-def _answer_column(table: Table | None, stamps: IntArray, path: str) -> FloatArray:
-    """A field of the messages answering each block (matched by header stamp, the first in
-    the file where several carry one), as floats; NaN where no message answers or the
-    session's definition has no such field."""
-    out = np.full(stamps.size, np.nan)
+def _answer_column(table: Table | None, where: IntArray, path: str) -> FloatArray:
+    """A field of the messages answering each block (``where``: :func:`_answers`), as floats;
+    NaN where no message answers or the session's definition has no such field."""
+    out = np.full(where.size, np.nan)
     if table is None or path not in table.columns or not table.count:
         return out
-    where = _answers(table, stamps)
     found = where >= 0
     out[found] = table.columns[path][where[found]].astype(np.float64)
     return out
 
 
-_ANSWER_INDEX: dict[tuple[int, int], IntArray] = {}
-
-
-def _answers(table: Table, stamps: IntArray) -> IntArray:
-    """The index of the first message of ``table`` stamped as each block, -1 where none."""
-    key = (id(table), id(stamps))
-    if key not in _ANSWER_INDEX:
-        carried = _stamps(table)
-        unique, first = np.unique(carried, return_index=True)   # the first of each stamp
-        at = np.clip(np.searchsorted(unique, stamps), 0, max(unique.size - 1, 0))
-        hit = unique.size > 0
-        found = (unique[at] == stamps) if hit else np.zeros(stamps.size, dtype=bool)
-        _ANSWER_INDEX.clear()
-        _ANSWER_INDEX[key] = np.where(found, first[at] if hit else 0, -1).astype(np.int64)
-    return _ANSWER_INDEX[key]
+def _answers(table: Table | None, stamps: IntArray) -> IntArray:
+    """The index of the message of ``table`` answering each block (stamped as its last sample;
+    the first in the file where several are), -1 where none does."""
+    if table is None or not table.count or 'header.stamp.sec' not in table.columns:
+        return np.full(stamps.size, -1, dtype=np.int64)
+    carried = _stamps(table)
+    unique, first = np.unique(carried, return_index=True)   # the first of each stamp
+    at = np.clip(np.searchsorted(unique, stamps), 0, unique.size - 1)
+    found: IntArray = np.where(unique[at] == stamps, first[at], -1).astype(np.int64)
+    return found
 
 
 def _cuts(table: Table | None) -> list[CutRecord]:
@@ -741,9 +734,10 @@ def read_session(path: str | Path, partial: bool = False) -> Session:
         assert ragged is not None
         t_end = np.array([b.t0_s + len(b) * b.sample_period_s for b in ragged])
     estimate, command, override, truth = (tables.get(t) for t in ANSWERS)
+    answering = {id(t): _answers(t, stamps) for t in (estimate, command, override, truth)}
 
     def column(table: Table | None, name: str) -> FloatArray:
-        return _answer_column(table, stamps, name)
+        return _answer_column(table, answering[id(table)], name)
 
     signals = {
         'estimated_force_n': column(estimate, 'force_n'),
@@ -767,7 +761,6 @@ def read_session(path: str | Path, partial: bool = False) -> Session:
         'feed_mm_rev': column(truth, 'feed_mm_rev'),
         'applied_override_pct': column(truth, 'override_pct'),
     }
-    _ANSWER_INDEX.clear()
     arm_changes: list[tuple[float, bool]] = []
     if override is not None and override.count and 'armed' in override.columns:
         carried = _stamps(override)
