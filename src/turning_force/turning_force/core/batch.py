@@ -89,20 +89,27 @@ class CurrentArrays:
         which block differs where they do not)."""
         if not blocks:
             raise ValueError('no blocks')
-        first = blocks[0]
-        m, dt = len(first), first.sample_period_s
-        for k, b in enumerate(blocks):
-            if len(b) != m or not _same(b.sample_period_s, dt) or any(
-                    x.size != m for x in (b.phase_v_a, b.rotor_angle_rad, b.feed_rate_mm_min)):
-                raise ValueError(f'block {k}: {len(b)} samples at {b.sample_period_s!r} s, '
-                                 f'not {m} at {dt!r} s as block 0')
-
-        def stack(name: str) -> FloatArray:
-            return np.stack([np.asarray(getattr(b, name), dtype=np.float64) for b in blocks])
-
-        return cls(np.array([b.t0_s for b in blocks], dtype=np.float64), float(dt),
-                   stack('phase_u_a'), stack('phase_v_a'), stack('rotor_angle_rad'),
-                   stack('feed_rate_mm_min'))
+        n, m, dt = len(blocks), len(blocks[0]), blocks[0].sample_period_s
+        periods = np.fromiter((b.sample_period_s for b in blocks), np.float64, n)
+        same = (periods == dt) | (np.isnan(periods) & math.isnan(dt))
+        try:
+            if not same.all():
+                raise ValueError('sample periods differ')
+            arrays = [np.stack([np.asarray(getattr(b, name), dtype=np.float64) for b in blocks])
+                      for name in ('phase_u_a', 'phase_v_a', 'rotor_angle_rad',
+                                   'feed_rate_mm_min')]
+            if arrays[0].shape != (n, m):
+                raise ValueError('not one-dimensional')
+        except ValueError:   # say which block (a slow look, on the way to an error only)
+            for k, b in enumerate(blocks):
+                if not _same(b.sample_period_s, dt) or any(
+                        np.shape(x) != (m,) for x in (b.phase_u_a, b.phase_v_a,
+                                                      b.rotor_angle_rad, b.feed_rate_mm_min)):
+                    raise ValueError(f'block {k}: {len(b)} samples at {b.sample_period_s!r} s, '
+                                     f'not {m} at {dt!r} s as block 0') from None
+            raise
+        t0 = np.fromiter((b.t0_s for b in blocks), np.float64, n)
+        return cls(t0, float(dt), *arrays)
 
 
 def _same(a: float, b: float) -> bool:
