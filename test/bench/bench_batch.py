@@ -73,7 +73,6 @@ def per_block_loop(experiment: Any, currents: batch.CurrentArrays, changes: Any,
 def session_of(run: batch.CoreRun, experiment: Any) -> Session:
     """A Session of a core run, as the reader would give it for its recording (no bag)."""
     c, chain = run.currents, run.chain
-    n = len(c)
     signals = {
         'estimated_force_n': chain.estimated_force_n,
         'estimated_force_rate_n_s': chain.estimated_force_rate_n_s,
@@ -90,8 +89,8 @@ def session_of(run: batch.CoreRun, experiment: Any) -> Session:
         'feed_mm_rev': run.plant['feed_mm_rev'], 'applied_override_pct': run.plant['override_pct'],
     }
     stamps = np.round((c.t_end_s - c.sample_period_s) * 1e9).astype(np.int64)
-    return Session(Path('synthetic'), {}, experiment, [c.block(k) for k in range(n)], c.t_end_s,
-                   stamps, signals, has_truth=True, arm_changes=[(0.0, experiment.bridge.armed)])
+    return Session(Path('synthetic'), {}, experiment, c, c.t_end_s, stamps, signals,
+                   has_truth=True, arm_changes=[(0.0, experiment.bridge.armed)])
 
 
 def differences(a: batch.ChainTrace, b: batch.ChainTrace) -> str:

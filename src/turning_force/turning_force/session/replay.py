@@ -96,15 +96,11 @@ def replay(session: Session, sets: Sequence[str] = (),
 
 
 def _currents(session: Session) -> CurrentArrays | list[CurrentBlock]:
-    """The session's currents as arrays (the reader's, or one ``np.stack`` of its blocks), or
-    its blocks where they differ in length or sample period (those replay in Python)."""
-    held = getattr(session, 'currents', None)   # a reader that holds them as arrays
-    if isinstance(held, CurrentArrays):
-        return held
-    try:
-        return CurrentArrays.from_blocks(session.blocks)
-    except ValueError:
-        return session.blocks
+    """The session's currents as the reader holds them (arrays), or its blocks where they
+    differ in length or sample period (those replay in Python)."""
+    if session.currents is not None:
+        return session.currents
+    return list(session.blocks)
 
 
 def _inputs(session: Session) -> InputArrays:

@@ -18,6 +18,10 @@ mcap's stream reader does, with the mcap library's record parsers, and
 
 Whether what was read is everything the session recorded is for the caller to judge against the
 session's ``metadata.yaml`` (:mod:`turning_force.session.reader`).
+
+With a ``sink``, messages are not kept: each intact chunk's messages go to the sink at once, as
+arrays (channel ids, log times, where each message's bytes lie in the chunk's records), so that
+a reader decodes an hour-long session chunk by chunk, never holding its bytes all at once.
 """
 
 from __future__ import annotations
@@ -27,10 +31,13 @@ import io
 import mmap
 import struct
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import lz4.frame
+import numpy as np
+import numpy.typing as npt
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
@@ -45,7 +52,7 @@ from mcap.records import (
     Schema,
 )
 
-__all__ = ['MAGIC', 'McapScan', 'scan_mcap']
+__all__ = ['MAGIC', 'McapScan', 'MessageSink', 'scan_mcap']
 
 MAGIC = b'\x89MCAP0\r\n'
 FOOTER_SIZE = 1 + 8 + 20 + len(MAGIC)   # opcode, length, summary start and offsets, crc; magic
@@ -55,9 +62,17 @@ ZSTD_CHUNK_TAG = b'\x04\x00\x00\x00zstd'
 ZSTD_CHUNK_TAG_OFFSET = 1 + 8 + 8 + 8 + 8 + 4
 # A message record: channel id, sequence, log time, publish time; then the data.
 MESSAGE_HEADER = struct.Struct('<HIQQ')
+RECORD_HEADER = struct.Struct('<BQ')
 # What a damaged record makes a parser raise: short or garbled fields, bad text, bad compression.
 RECORD_ERRORS = (McapError, ValueError, struct.error, EOFError, OverflowError, MemoryError,
                  zstandard.ZstdError, RuntimeError)
+
+
+IntArray = npt.NDArray[np.int64]
+# A chunk's messages: (the scan so far (its channels and schemas), the chunk's records' bytes,
+# channel id, log time [ns], offset of each message's data in those bytes, its size).
+MessageSink = Callable[['McapScan', npt.NDArray[np.uint8], IntArray, IntArray, IntArray,
+                        IntArray], None]
 
 
 class _Exact(ReadDataStream):
@@ -93,6 +108,7 @@ class McapScan:
     messages: list[Message] = field(default_factory=list)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     damage: list[str] = field(default_factory=list)
+    counts: dict[int, int] = field(default_factory=dict)   # messages read, by channel id
 
 
 def _decompress(chunk: Chunk) -> bytes:
@@ -150,9 +166,49 @@ def _chunk_records(data: bytes) -> list[Schema | Channel | Message]:
     return out
 
 
+def _chunk_messages(data: bytes) -> tuple[list[Schema | Channel], IntArray, IntArray]:
+    """The schemas and channels inside a chunk, and where its message records start and how
+    long they are (other records are skipped); raises as :func:`_chunk_records`."""
+    out: list[Schema | Channel] = []
+    starts: list[int] = []
+    lengths: list[int] = []
+    unpack = RECORD_HEADER.unpack_from
+    pos, size = 0, len(data)
+    message, header = Opcode.MESSAGE, MESSAGE_HEADER.size
+    while pos < size:
+        if pos + 9 > size:
+            raise McapError(f'a record header at {pos} runs past the end of the chunk')
+        opcode, length = unpack(data, pos)
+        end = pos + 9 + length
+        if end > size:
+            raise McapError(f'a record at {pos} runs past the end of the chunk')
+        if opcode == message:
+            if length < header:
+                raise McapError(f'a message record at {pos} of {length} bytes')
+            starts.append(pos)
+            lengths.append(length)
+        elif opcode == Opcode.CHANNEL:
+            out.append(Channel.read(_stream(data[pos + 9:end])))
+        elif opcode == Opcode.SCHEMA:
+            out.append(Schema.read(_stream(data[pos + 9:end])))
+        elif opcode not in {Opcode.METADATA, Opcode.ATTACHMENT}:
+            raise McapError(f'record with opcode {opcode:#04x} at {pos} inside a chunk')
+        pos = end
+    return out, np.array(starts, dtype=np.int64), np.array(lengths, dtype=np.int64)
+
+
+def _little(raw: npt.NDArray[np.uint8], at: IntArray, width: int) -> IntArray:
+    """The unsigned little-endian integers of ``width`` bytes at ``at``."""
+    picked = raw[at[:, None] + np.arange(width)]
+    value: IntArray = picked.view(f'<u{width}').reshape(-1).astype(np.int64)
+    return value
+
+
 class _Scanner:
-    def __init__(self, path: Path, data: bytes | mmap.mmap) -> None:
+    def __init__(self, path: Path, data: bytes | mmap.mmap,
+                 sink: MessageSink | None = None) -> None:
         self.data = data
+        self.sink = sink
         self.out = McapScan(path, len(data))
         self.known_chunks: set[int] = set()   # offsets of chunk records found or indexed
         # The summary's copies of schemas and channels: the data's own (in a chunk, under its
@@ -163,7 +219,15 @@ class _Scanner:
     def add(self, record: Schema | Channel | Message, where: str) -> None:
         out = self.out
         if isinstance(record, Message):
-            out.messages.append(record)
+            out.counts[record.channel_id] = out.counts.get(record.channel_id, 0) + 1
+            if self.sink is None:
+                out.messages.append(record)
+            else:
+                one = np.array([record.channel_id], dtype=np.int64)
+                self.sink(out, np.frombuffer(record.data, dtype=np.uint8), one,
+                          np.array([record.log_time], dtype=np.int64),
+                          np.zeros(1, dtype=np.int64),
+                          np.array([len(record.data)], dtype=np.int64))
             return
         table: dict[int, Schema] | dict[int, Channel] = (
             out.schemas if isinstance(record, Schema) else out.channels)
@@ -260,6 +324,9 @@ class _Scanner:
 
     def chunk(self, pos: int, body: bytes) -> None:
         self.read_chunks.add(pos)
+        if self.sink is not None:
+            self.streamed_chunk(pos, body)
+            return
         try:
             chunk = Chunk.read(_stream(body))
             records = _chunk_records(_decompress(chunk))
@@ -268,6 +335,28 @@ class _Scanner:
             return
         for record in records:
             self.add(record, f'chunk at byte {pos}')
+
+    def streamed_chunk(self, pos: int, body: bytes) -> None:
+        """A chunk whose messages go to the sink as arrays."""
+        assert self.sink is not None
+        try:
+            chunk = Chunk.read(_stream(body))
+            data = _decompress(chunk)
+            records, starts, lengths = _chunk_messages(data)
+        except RECORD_ERRORS as exc:
+            self.out.damage.append(f'chunk at byte {pos} ({9 + len(body)} bytes): {exc}')
+            return
+        for record in records:
+            self.add(record, f'chunk at byte {pos}')
+        if not starts.size:
+            return
+        raw = np.frombuffer(data, dtype=np.uint8)
+        channels = _little(raw, starts + 9, 2)
+        ids, counts = np.unique(channels, return_counts=True)
+        for channel, count in zip(ids.tolist(), counts.tolist(), strict=True):
+            self.out.counts[channel] = self.out.counts.get(channel, 0) + count
+        self.sink(self.out, raw, channels, _little(raw, starts + 9 + 6, 8),
+                  starts + 9 + MESSAGE_HEADER.size, lengths - MESSAGE_HEADER.size)
 
     def data_section(self, pos: int, end: int) -> int:
         """Read records from ``pos`` until the data section ends or a record is unreadable;
@@ -341,15 +430,16 @@ class _Scanner:
         for record, pos in self.summary_records:
             self.add(record, f'summary at byte {pos}')
         described = set(self.out.channels)
-        for index in sorted({m.channel_id for m in self.out.messages} - described):
-            lost = sum(1 for m in self.out.messages if m.channel_id == index)
+        for index in sorted(set(self.out.counts) - described):
+            lost = self.out.counts[index]
             self.out.damage.append(f'{lost} messages on channel {index}, which the file does '
                                    'not describe')
         return self.out
 
 
-def scan_mcap(path: Path) -> McapScan:
-    """Every record of the MCAP file at ``path`` that can be read, and what cannot.
+def scan_mcap(path: Path, sink: MessageSink | None = None) -> McapScan:
+    """Every record of the MCAP file at ``path`` that can be read, and what cannot; with a
+    ``sink``, the messages go to it (chunk by chunk, as arrays) instead of into the scan.
 
     Raises ``OSError`` if the file cannot be opened.
     """
@@ -359,4 +449,4 @@ def scan_mcap(path: Path) -> McapScan:
             out.damage.append('the file is empty')
             return out
         with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:
-            return _Scanner(path, data).run()
+            return _Scanner(path, data, sink).run()
