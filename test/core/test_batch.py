@@ -16,7 +16,6 @@ import pytest
 from test_kernel import EXPERIMENTS, FIG8, FILES, IN_PYTHON
 
 from turning_force import robustness
-from turning_force.core import kernel
 from turning_force.core.batch import (
     ChainTrace,
     CoreRun,
@@ -278,10 +277,9 @@ def head(trace: ChainTrace, n: int) -> ChainTrace:
 def test_short_replays_and_lists_of_blocks():
     e, run = fig8_run()
     short = [run.currents.block(k) for k in range(50)]
-    if kernel.loaded() is None:   # only where numba is not loaded yet: not in this suite
-        assert 'short replay' in replay_chain(e, short, [(0.0, True)]).python_reason
-    # A list of blocks of one shape goes to the kernel; one of another length to Python.
-    compiled = replay_chain(e, short, [(0.0, True)], compiled=True)
+    # A list of blocks of one shape goes to the kernel, however short; one of another length
+    # to Python.
+    compiled = replay_chain(e, short, [(0.0, True)])
     assert compiled.compiled
     odd = [*short[:-1], CurrentBlock(short[-1].t0_s, 1e-3, short[-1].phase_u_a[:5],
                                      short[-1].phase_v_a[:5], short[-1].rotor_angle_rad[:5],

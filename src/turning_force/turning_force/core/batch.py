@@ -41,9 +41,6 @@ FloatArray = npt.NDArray[np.float64]
 Int8Array = npt.NDArray[np.int8]
 BoolArray = npt.NDArray[np.bool_]
 
-# Replays shorter than this run in Python unless the kernel is loaded (numba's import and the
-# cached machine code take about a second; Python does about 4000 blocks a second).
-REPLAY_BACKGROUND_BLOCKS = 3000
 # Blocks per call of the kernel where replay reports its progress (about 10 ms of work).
 REPLAY_CHUNK_BLOCKS = 20000
 
@@ -280,9 +277,10 @@ def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[Curr
     saw (None: the last given stand); an :class:`InputArrays` goes to the kernel whole.
     ``reference_force_n``: the reference to start from (:class:`ControlChain`'s).
 
-    ``compiled``: None, the kernel where it covers the settings and the inputs (and, unless it
-    is loaded already, the replay is ``REPLAY_BACKGROUND_BLOCKS`` long or more); True, the
-    kernel (a :class:`ConfigError` naming what it does not run); False, the Python reference.
+    ``compiled``: None, the kernel where it covers the settings and the inputs, however short
+    the replay (the Python path would load it too, for its estimator and controller); True,
+    the kernel (a :class:`ConfigError` naming what it does not run); False, the Python
+    reference throughout.
     ``currents`` may also be a list of blocks, for blocks of differing lengths or sample
     periods (the kernel needs one of each): those run in Python. ``progress(done, n)`` is
     called as blocks are done (every block in Python, every ``REPLAY_CHUNK_BLOCKS`` compiled).
@@ -310,9 +308,6 @@ def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[Curr
     if not reason and inputs is not None:
         seen = inputs if isinstance(inputs, InputArrays) else InputArrays.collect(inputs, n)
         reason = _inputs_reason(experiment, seen)
-    if not reason and compiled is None and kernel.loaded() is None \
-            and n < REPLAY_BACKGROUND_BLOCKS:
-        reason = f'a short replay ({n} blocks) is done in Python before numba would load'
     if compiled and reason:
         raise ConfigError(f'{experiment.run.name}: compiled replay: {reason}')
     if reason or arrays is None:
