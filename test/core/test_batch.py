@@ -51,6 +51,7 @@ def assert_same_chain(got: ChainTrace, expected: ChainTrace) -> None:
         if isinstance(b, np.ndarray):
             assert a.dtype == b.dtype, f.name
             np.testing.assert_array_equal(a, b, err_msg=f.name)
+    assert got.estimate_detail == expected.estimate_detail
 
 
 def assert_same_run(got: CoreRun, expected: CoreRun) -> None:
@@ -221,6 +222,9 @@ def test_nan_blocks_the_watchdog_and_a_stamp_jump():
     status = trace.estimate_status
     assert (status[300:320] == EstimateStatus.INVALID_INPUT).all()
     assert status[500] == EstimateStatus.INVALID_INPUT
+    assert trace.estimate_detail[300] == '10 non-finite samples'
+    assert trace.estimate_detail[500] == '1 non-finite samples'
+    assert 'is not after the previous' in trace.estimate_detail[700]
     assert (status[700:703] == EstimateStatus.INVALID_INPUT).any()
     assert np.isnan(trace.requested_override_pct[300:320]).all()
     assert trace.reference_reachable[300:320].all()
@@ -269,7 +273,8 @@ def test_the_machines_inputs():
 
 
 def head(trace: ChainTrace, n: int) -> ChainTrace:
-    return dataclasses.replace(trace, **{
+    return dataclasses.replace(trace, estimate_detail={
+        k: text for k, text in trace.estimate_detail.items() if k < n}, **{
         f.name: getattr(trace, f.name)[:n] for f in dataclasses.fields(ChainTrace)
         if isinstance(getattr(trace, f.name), np.ndarray)})
 
@@ -325,3 +330,13 @@ def test_input_arrays_carry_the_last_given():
     np.testing.assert_array_equal(enable, [-1, 1, 1, 0, 0])
     np.testing.assert_array_equal(threading, [-1, -1, -1, 1, 1])
     np.testing.assert_array_equal(dial, [math.nan, 80.0, 80.0, math.nan, math.nan])
+
+
+def test_a_friction_re_zero_in_air_and_its_notes():
+    e = load_experiment(FIG8).with_sets([
+        'lathe_sim.depth_times_s=[0.0, 2.0, 6.0]', 'lathe_sim.depth_mm=[0.0, 1.0, 2.0]',
+        'lathe_sim.friction_at_min_feed_a=0.81', 'experiment.duration_s=3.0'])
+    run = run_core(e, compiled=True)
+    assert_same_run(run, run_core(e, compiled=False))
+    assert any('re-zeroed' in text for text in run.chain.estimate_detail.values())
+    replays_itself(run, e, True)

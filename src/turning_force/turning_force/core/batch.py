@@ -28,6 +28,7 @@ import numpy.typing as npt
 from turning_force.core import kernel
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import ConfigError
+from turning_force.core.estimation import EstimatorSettings
 from turning_force.core.experiment import Experiment
 from turning_force.core.loop import ChainStep, ControlChain
 from turning_force.core.overrides import OverrideTable, get_table
@@ -201,6 +202,9 @@ class ChainTrace:
     engaged: BoolArray                         # the tool in the cut
     alarm: BoolArray
     stop_request: BoolArray
+    tracking_error_n: FloatArray               # FeedCommand's F - F_ref; NaN where silent
+    # ForceEstimate.detail where it is not empty (why a block was refused, a note), by block
+    estimate_detail: dict[int, str] = field(default_factory=dict)
     compiled: bool = False                     # whether the kernel ran it (all of it)
     python_reason: str = ''                    # why not ('' where it did)
     compiled_from: int | None = None           # the first block the kernel ran; None: none
@@ -216,11 +220,16 @@ class ChainTrace:
         def flags(value: bool = False) -> BoolArray:
             return np.full(n, value, dtype=np.bool_)
 
-        return cls(floats(), floats(), floats(), floats(), np.zeros(n, dtype=np.int8),
-                   floats(), floats(), floats(), flags(True), floats(),
-                   np.zeros(n, dtype=np.int8), flags(), np.zeros(n, dtype=np.int16), floats(),
-                   np.full(n, -1, dtype=np.int8), np.full(n, -1, dtype=np.int8), floats(),
-                   flags(), flags(), flags())
+        return cls(
+            estimated_force_n=floats(), estimated_force_rate_n_s=floats(),
+            current_q_a=floats(), friction_current_a=floats(),
+            estimate_status=np.zeros(n, dtype=np.int8), requested_override_pct=floats(),
+            reference_n=floats(), sliding_variable=floats(), reference_reachable=flags(True),
+            applied_pct=floats(), reason=np.zeros(n, dtype=np.int8), armed=flags(),
+            pmc_code=np.zeros(n, dtype=np.int16), gate_requested_pct=floats(),
+            program_enable=np.full(n, -1, dtype=np.int8),
+            threading=np.full(n, -1, dtype=np.int8), operator_dial_pct=floats(),
+            engaged=flags(), alarm=flags(), stop_request=flags(), tracking_error_n=floats())
 
     def _put(self, k: int, step: ChainStep, reference_n: float) -> None:
         """Row ``k`` from one step of the Python chain."""
@@ -228,7 +237,10 @@ class ChainTrace:
         self.estimated_force_n[k], self.estimated_force_rate_n_s[k] = e.force_n, e.force_rate_n_s
         self.current_q_a[k], self.friction_current_a[k] = e.current_q_a, e.friction_current_a
         self.estimate_status[k] = int(e.status)
+        if e.detail:
+            self.estimate_detail[k] = e.detail
         if command is not None:
+            self.tracking_error_n[k] = command.error_n
             self.requested_override_pct[k] = command.override_pct
             self.reference_n[k] = reference_n
             self.sliding_variable[k] = command.sliding_variable
@@ -390,7 +402,7 @@ def _replay_compiled(chain: ControlChain, currents: CurrentArrays,
         if progress is not None:
             progress(end, n)
     trace = ChainTrace._empty(n)
-    _rows_into(jit, rows, trace, 0, chain.gate.table)
+    _rows_into(jit, rows, trace, 0, chain.gate.table, chain.estimator.settings, currents)
     return trace
 
 
@@ -401,9 +413,13 @@ def _c(values: FloatArray) -> FloatArray:
 
 
 def _rows_into(jit: Any, rows: FloatArray, trace: ChainTrace, first: int,
-               table: OverrideTable) -> None:
+               table: OverrideTable, settings: EstimatorSettings,
+               currents: CurrentArrays) -> None:
     """The kernel's chain rows ``first`` .. n - 1 into the trace's arrays (the inputs the
-    decisions saw are not the kernel's business: the caller fills them)."""
+    decisions saw are not the kernel's business: the caller fills them); the estimate's
+    details in the reference's words."""
+    from turning_force.core.kernel.components import detail_text
+
     r = rows[first:]
     sl = slice(first, None)
     acted = r[:, jit.CH_ACTED] != 0.0
@@ -425,6 +441,12 @@ def _rows_into(jit: Any, rows: FloatArray, trace: ChainTrace, first: int,
     trace.engaged[sl] = r[:, jit.CH_ENGAGED] != 0.0
     trace.alarm[sl] = r[:, jit.CH_ALARM] != 0.0
     trace.stop_request[sl] = r[:, jit.CH_STOP] != 0.0
+    trace.tracking_error_n[sl] = np.where(acted, r[:, jit.CH_ERR], np.nan)
+    for k in np.flatnonzero(r[:, jit.CH_DCODE] != jit.D_NONE).tolist():
+        row = r[k]
+        trace.estimate_detail[first + k] = detail_text(
+            settings, currents.block(first + k), int(row[jit.CH_DCODE]),
+            float(row[jit.CH_DVAL]), float(row[jit.CH_DVAL + 1]))
 
 
 def pmc_codes(table: OverrideTable, applied_pct: FloatArray) -> npt.NDArray[np.int16]:
@@ -476,7 +498,8 @@ class _Keeper:
 
     def kernel_done(self, first: int) -> None:
         assert self.rows is not None
-        _rows_into(kernel.load(), self.rows, self.chain, first, self.table)
+        _rows_into(kernel.load(), self.rows, self.chain, first, self.table,
+                   self.experiment.estimator, self.currents)
         # The simulated machine wires no inputs where the kernel runs (kernel.NEUTRAL).
         self.chain.program_enable[first:] = -1
         self.chain.threading[first:] = -1

@@ -112,8 +112,8 @@ TRACE_COLUMNS = 11
 # the decision and the gate's outputs, one row per block
 CH_FORCE, CH_RATE, CH_IQ, CH_IFR, CH_STATUS, CH_ACTED, CH_REQ, CH_S, CH_REACH = range(9)
 CH_REF, CH_APPLIED, CH_REASON, CH_ARMED, CH_GATE_REQ, CH_ENGAGED, CH_ALARM = range(9, 16)
-CH_STOP = 16
-CHAIN_COLUMNS = 17
+CH_STOP, CH_ERR, CH_DCODE, CH_DVAL = 16, 17, 18, 19   # the estimate's detail: code, 2 values
+CHAIN_COLUMNS = 21
 
 
 # --- Python's and numpy's scalar rules ------------------------------------------------------
@@ -1120,6 +1120,9 @@ def _chain_row(rows: np.ndarray, k: int, es: np.ndarray, status: int, acted: boo
     rows[k, CH_IQ], rows[k, CH_IFR], rows[k, CH_STATUS] = es[ES_IQ], es[ES_IFR], status
     rows[k, CH_ACTED] = 1.0 if acted else 0.0
     rows[k, CH_REQ], rows[k, CH_S], rows[k, CH_REACH] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
+    rows[k, CH_ERR] = out[OUT_ERR]
+    rows[k, CH_DCODE], rows[k, CH_DVAL], rows[k, CH_DVAL + 1] = (es[ES_DCODE], es[ES_DVAL],
+                                                                 es[ES_DVAL + 1])
     rows[k, CH_REF] = cp[C_REF]
     rows[k, CH_APPLIED], rows[k, CH_REASON] = decision[0], decision[1]
     rows[k, CH_ARMED], rows[k, CH_GATE_REQ] = gs[GS_ARMED], gs[GS_REQ]
