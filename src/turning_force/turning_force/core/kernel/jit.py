@@ -1024,13 +1024,21 @@ def _observe(gp: np.ndarray, gs: np.ndarray, force: float) -> None:
 
 @njit(**_OPTIONS)
 def gate_on_estimate(gp: np.ndarray, gs: np.ndarray, force: float, status: int) -> None:
-    """OverrideGate.on_estimate."""
+    """OverrideGate.on_estimate, where only the override counts (the core loop's trace): the
+    shop floor's outputs are not kept up (:func:`gate_observe`)."""
     if status == INVALID_INPUT or status == STALE:   # noqa: SIM109 -- numba: no tuple ``in``
         return
     gs[GS_LAST_F], gs[GS_LAST_STATUS] = force, status
     if _over_limit(gp, force, status) and gs[GS_HOLD] == 0.0:
         gs[GS_HOLD] = 1.0
-    if math.isfinite(force):
+
+
+@njit(**_OPTIONS)
+def gate_observe(gp: np.ndarray, gs: np.ndarray, force: float, status: int) -> None:
+    """OverrideGate.on_estimate whole: the override's state and the shop floor's outputs (the
+    cut detector, the overload reaction)."""
+    gate_on_estimate(gp, gs, force, status)
+    if status != INVALID_INPUT and status != STALE and math.isfinite(force):
         _observe(gp, gs, force)
 
 
@@ -1157,7 +1165,7 @@ def run_core_kept(pp, ps, times, depths, noise_u, noise_v, noise_f, ep, es, cp, 
         t_end = t0 + n * dt
         status = estimator_update(ep, es, t0, dt, uk, vk, ak, fk, work)
         force, rate = es[ES_F], es[ES_R]
-        gate_on_estimate(gp, gs, force, status)
+        gate_observe(gp, gs, force, status)
         acted = (status == OK or status == SATURATED) and math.isfinite(force)  # noqa: SIM109
         if acted:
             controller_update(cp, cs, clevels, force, rate, out)
@@ -1200,7 +1208,7 @@ def replay_blocks(ep, es, cp, cs, clevels, gp, gs, glevels, t0s, dt, u, v, angle
             change += 1
         status = estimator_update(ep, es, t0, dt, u[k], v[k], angle[k], feed[k], work)
         force, rate = es[ES_F], es[ES_R]
-        gate_on_estimate(gp, gs, force, status)
+        gate_observe(gp, gs, force, status)
         acted = (status == OK or status == SATURATED) and math.isfinite(force)  # noqa: SIM109
         if acted:
             controller_update(cp, cs, clevels, force, rate, out)
