@@ -28,6 +28,7 @@ import numpy.typing as npt
 from turning_force.core import kernel
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import ConfigError
+from turning_force.core.estimation import EstimatorSettings
 from turning_force.core.experiment import Experiment
 from turning_force.core.loop import ChainStep, ControlChain
 from turning_force.core.overrides import OverrideTable, get_table
@@ -41,9 +42,6 @@ FloatArray = npt.NDArray[np.float64]
 Int8Array = npt.NDArray[np.int8]
 BoolArray = npt.NDArray[np.bool_]
 
-# Replays shorter than this run in Python unless the kernel is loaded (numba's import and the
-# cached machine code take about a second; Python does about 4000 blocks a second).
-REPLAY_BACKGROUND_BLOCKS = 3000
 # Blocks per call of the kernel where replay reports its progress (about 10 ms of work).
 REPLAY_CHUNK_BLOCKS = 20000
 
@@ -89,20 +87,27 @@ class CurrentArrays:
         which block differs where they do not)."""
         if not blocks:
             raise ValueError('no blocks')
-        first = blocks[0]
-        m, dt = len(first), first.sample_period_s
-        for k, b in enumerate(blocks):
-            if len(b) != m or not _same(b.sample_period_s, dt) or any(
-                    x.size != m for x in (b.phase_v_a, b.rotor_angle_rad, b.feed_rate_mm_min)):
-                raise ValueError(f'block {k}: {len(b)} samples at {b.sample_period_s!r} s, '
-                                 f'not {m} at {dt!r} s as block 0')
-
-        def stack(name: str) -> FloatArray:
-            return np.stack([np.asarray(getattr(b, name), dtype=np.float64) for b in blocks])
-
-        return cls(np.array([b.t0_s for b in blocks], dtype=np.float64), float(dt),
-                   stack('phase_u_a'), stack('phase_v_a'), stack('rotor_angle_rad'),
-                   stack('feed_rate_mm_min'))
+        n, m, dt = len(blocks), len(blocks[0]), blocks[0].sample_period_s
+        periods = np.fromiter((b.sample_period_s for b in blocks), np.float64, n)
+        same = (periods == dt) | (np.isnan(periods) & math.isnan(dt))
+        try:
+            if not same.all():
+                raise ValueError('sample periods differ')
+            arrays = [np.stack([np.asarray(getattr(b, name), dtype=np.float64) for b in blocks])
+                      for name in ('phase_u_a', 'phase_v_a', 'rotor_angle_rad',
+                                   'feed_rate_mm_min')]
+            if arrays[0].shape != (n, m):
+                raise ValueError('not one-dimensional')
+        except ValueError:   # say which block (a slow look, on the way to an error only)
+            for k, b in enumerate(blocks):
+                if not _same(b.sample_period_s, dt) or any(
+                        np.shape(x) != (m,) for x in (b.phase_u_a, b.phase_v_a,
+                                                      b.rotor_angle_rad, b.feed_rate_mm_min)):
+                    raise ValueError(f'block {k}: {len(b)} samples at {b.sample_period_s!r} s, '
+                                     f'not {m} at {dt!r} s as block 0') from None
+            raise
+        t0 = np.fromiter((b.t0_s for b in blocks), np.float64, n)
+        return cls(t0, float(dt), *arrays)
 
 
 def _same(a: float, b: float) -> bool:
@@ -197,6 +202,9 @@ class ChainTrace:
     engaged: BoolArray                         # the tool in the cut
     alarm: BoolArray
     stop_request: BoolArray
+    tracking_error_n: FloatArray               # FeedCommand's F - F_ref; NaN where silent
+    # ForceEstimate.detail where it is not empty (why a block was refused, a note), by block
+    estimate_detail: dict[int, str] = field(default_factory=dict)
     compiled: bool = False                     # whether the kernel ran it (all of it)
     python_reason: str = ''                    # why not ('' where it did)
     compiled_from: int | None = None           # the first block the kernel ran; None: none
@@ -212,11 +220,16 @@ class ChainTrace:
         def flags(value: bool = False) -> BoolArray:
             return np.full(n, value, dtype=np.bool_)
 
-        return cls(floats(), floats(), floats(), floats(), np.zeros(n, dtype=np.int8),
-                   floats(), floats(), floats(), flags(True), floats(),
-                   np.zeros(n, dtype=np.int8), flags(), np.zeros(n, dtype=np.int16), floats(),
-                   np.full(n, -1, dtype=np.int8), np.full(n, -1, dtype=np.int8), floats(),
-                   flags(), flags(), flags())
+        return cls(
+            estimated_force_n=floats(), estimated_force_rate_n_s=floats(),
+            current_q_a=floats(), friction_current_a=floats(),
+            estimate_status=np.zeros(n, dtype=np.int8), requested_override_pct=floats(),
+            reference_n=floats(), sliding_variable=floats(), reference_reachable=flags(True),
+            applied_pct=floats(), reason=np.zeros(n, dtype=np.int8), armed=flags(),
+            pmc_code=np.zeros(n, dtype=np.int16), gate_requested_pct=floats(),
+            program_enable=np.full(n, -1, dtype=np.int8),
+            threading=np.full(n, -1, dtype=np.int8), operator_dial_pct=floats(),
+            engaged=flags(), alarm=flags(), stop_request=flags(), tracking_error_n=floats())
 
     def _put(self, k: int, step: ChainStep, reference_n: float) -> None:
         """Row ``k`` from one step of the Python chain."""
@@ -224,7 +237,10 @@ class ChainTrace:
         self.estimated_force_n[k], self.estimated_force_rate_n_s[k] = e.force_n, e.force_rate_n_s
         self.current_q_a[k], self.friction_current_a[k] = e.current_q_a, e.friction_current_a
         self.estimate_status[k] = int(e.status)
+        if e.detail:
+            self.estimate_detail[k] = e.detail
         if command is not None:
+            self.tracking_error_n[k] = command.error_n
             self.requested_override_pct[k] = command.override_pct
             self.reference_n[k] = reference_n
             self.sliding_variable[k] = command.sliding_variable
@@ -273,9 +289,10 @@ def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[Curr
     saw (None: the last given stand); an :class:`InputArrays` goes to the kernel whole.
     ``reference_force_n``: the reference to start from (:class:`ControlChain`'s).
 
-    ``compiled``: None, the kernel where it covers the settings and the inputs (and, unless it
-    is loaded already, the replay is ``REPLAY_BACKGROUND_BLOCKS`` long or more); True, the
-    kernel (a :class:`ConfigError` naming what it does not run); False, the Python reference.
+    ``compiled``: None, the kernel where it covers the settings and the inputs, however short
+    the replay (the Python path would load it too, for its estimator and controller); True,
+    the kernel (a :class:`ConfigError` naming what it does not run); False, the Python
+    reference throughout.
     ``currents`` may also be a list of blocks, for blocks of differing lengths or sample
     periods (the kernel needs one of each): those run in Python. ``progress(done, n)`` is
     called as blocks are done (every block in Python, every ``REPLAY_CHUNK_BLOCKS`` compiled).
@@ -303,9 +320,6 @@ def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[Curr
     if not reason and inputs is not None:
         seen = inputs if isinstance(inputs, InputArrays) else InputArrays.collect(inputs, n)
         reason = _inputs_reason(experiment, seen)
-    if not reason and compiled is None and kernel.loaded() is None \
-            and n < REPLAY_BACKGROUND_BLOCKS:
-        reason = f'a short replay ({n} blocks) is done in Python before numba would load'
     if compiled and reason:
         raise ConfigError(f'{experiment.run.name}: compiled replay: {reason}')
     if reason or arrays is None:
@@ -388,7 +402,7 @@ def _replay_compiled(chain: ControlChain, currents: CurrentArrays,
         if progress is not None:
             progress(end, n)
     trace = ChainTrace._empty(n)
-    _rows_into(jit, rows, trace, 0, chain.gate.table)
+    _rows_into(jit, rows, trace, 0, chain.gate.table, chain.estimator.settings, currents)
     return trace
 
 
@@ -399,9 +413,13 @@ def _c(values: FloatArray) -> FloatArray:
 
 
 def _rows_into(jit: Any, rows: FloatArray, trace: ChainTrace, first: int,
-               table: OverrideTable) -> None:
+               table: OverrideTable, settings: EstimatorSettings,
+               currents: CurrentArrays) -> None:
     """The kernel's chain rows ``first`` .. n - 1 into the trace's arrays (the inputs the
-    decisions saw are not the kernel's business: the caller fills them)."""
+    decisions saw are not the kernel's business: the caller fills them); the estimate's
+    details in the reference's words."""
+    from turning_force.core.kernel.components import detail_text
+
     r = rows[first:]
     sl = slice(first, None)
     acted = r[:, jit.CH_ACTED] != 0.0
@@ -423,6 +441,12 @@ def _rows_into(jit: Any, rows: FloatArray, trace: ChainTrace, first: int,
     trace.engaged[sl] = r[:, jit.CH_ENGAGED] != 0.0
     trace.alarm[sl] = r[:, jit.CH_ALARM] != 0.0
     trace.stop_request[sl] = r[:, jit.CH_STOP] != 0.0
+    trace.tracking_error_n[sl] = np.where(acted, r[:, jit.CH_ERR], np.nan)
+    for k in np.flatnonzero(r[:, jit.CH_DCODE] != jit.D_NONE).tolist():
+        row = r[k]
+        trace.estimate_detail[first + k] = detail_text(
+            settings, currents.block(first + k), int(row[jit.CH_DCODE]),
+            float(row[jit.CH_DVAL]), float(row[jit.CH_DVAL + 1]))
 
 
 def pmc_codes(table: OverrideTable, applied_pct: FloatArray) -> npt.NDArray[np.int16]:
@@ -474,7 +498,8 @@ class _Keeper:
 
     def kernel_done(self, first: int) -> None:
         assert self.rows is not None
-        _rows_into(kernel.load(), self.rows, self.chain, first, self.table)
+        _rows_into(kernel.load(), self.rows, self.chain, first, self.table,
+                   self.experiment.estimator, self.currents)
         # The simulated machine wires no inputs where the kernel runs (kernel.NEUTRAL).
         self.chain.program_enable[first:] = -1
         self.chain.threading[first:] = -1

@@ -112,8 +112,8 @@ TRACE_COLUMNS = 11
 # the decision and the gate's outputs, one row per block
 CH_FORCE, CH_RATE, CH_IQ, CH_IFR, CH_STATUS, CH_ACTED, CH_REQ, CH_S, CH_REACH = range(9)
 CH_REF, CH_APPLIED, CH_REASON, CH_ARMED, CH_GATE_REQ, CH_ENGAGED, CH_ALARM = range(9, 16)
-CH_STOP = 16
-CHAIN_COLUMNS = 17
+CH_STOP, CH_ERR, CH_DCODE, CH_DVAL = 16, 17, 18, 19   # the estimate's detail: code, 2 values
+CHAIN_COLUMNS = 21
 
 
 # --- Python's and numpy's scalar rules ------------------------------------------------------
@@ -1024,13 +1024,21 @@ def _observe(gp: np.ndarray, gs: np.ndarray, force: float) -> None:
 
 @njit(**_OPTIONS)
 def gate_on_estimate(gp: np.ndarray, gs: np.ndarray, force: float, status: int) -> None:
-    """OverrideGate.on_estimate."""
+    """OverrideGate.on_estimate, where only the override counts (the core loop's trace): the
+    shop floor's outputs are not kept up (:func:`gate_observe`)."""
     if status == INVALID_INPUT or status == STALE:   # noqa: SIM109 -- numba: no tuple ``in``
         return
     gs[GS_LAST_F], gs[GS_LAST_STATUS] = force, status
     if _over_limit(gp, force, status) and gs[GS_HOLD] == 0.0:
         gs[GS_HOLD] = 1.0
-    if math.isfinite(force):
+
+
+@njit(**_OPTIONS)
+def gate_observe(gp: np.ndarray, gs: np.ndarray, force: float, status: int) -> None:
+    """OverrideGate.on_estimate whole: the override's state and the shop floor's outputs (the
+    cut detector, the overload reaction)."""
+    gate_on_estimate(gp, gs, force, status)
+    if status != INVALID_INPUT and status != STALE and math.isfinite(force):
         _observe(gp, gs, force)
 
 
@@ -1120,6 +1128,9 @@ def _chain_row(rows: np.ndarray, k: int, es: np.ndarray, status: int, acted: boo
     rows[k, CH_IQ], rows[k, CH_IFR], rows[k, CH_STATUS] = es[ES_IQ], es[ES_IFR], status
     rows[k, CH_ACTED] = 1.0 if acted else 0.0
     rows[k, CH_REQ], rows[k, CH_S], rows[k, CH_REACH] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
+    rows[k, CH_ERR] = out[OUT_ERR]
+    rows[k, CH_DCODE], rows[k, CH_DVAL], rows[k, CH_DVAL + 1] = (es[ES_DCODE], es[ES_DVAL],
+                                                                 es[ES_DVAL + 1])
     rows[k, CH_REF] = cp[C_REF]
     rows[k, CH_APPLIED], rows[k, CH_REASON] = decision[0], decision[1]
     rows[k, CH_ARMED], rows[k, CH_GATE_REQ] = gs[GS_ARMED], gs[GS_REQ]
@@ -1154,7 +1165,7 @@ def run_core_kept(pp, ps, times, depths, noise_u, noise_v, noise_f, ep, es, cp, 
         t_end = t0 + n * dt
         status = estimator_update(ep, es, t0, dt, uk, vk, ak, fk, work)
         force, rate = es[ES_F], es[ES_R]
-        gate_on_estimate(gp, gs, force, status)
+        gate_observe(gp, gs, force, status)
         acted = (status == OK or status == SATURATED) and math.isfinite(force)  # noqa: SIM109
         if acted:
             controller_update(cp, cs, clevels, force, rate, out)
@@ -1197,7 +1208,7 @@ def replay_blocks(ep, es, cp, cs, clevels, gp, gs, glevels, t0s, dt, u, v, angle
             change += 1
         status = estimator_update(ep, es, t0, dt, u[k], v[k], angle[k], feed[k], work)
         force, rate = es[ES_F], es[ES_R]
-        gate_on_estimate(gp, gs, force, status)
+        gate_observe(gp, gs, force, status)
         acted = (status == OK or status == SATURATED) and math.isfinite(force)  # noqa: SIM109
         if acted:
             controller_update(cp, cs, clevels, force, rate, out)
