@@ -19,8 +19,8 @@ What the graph's session has and this one does not (:data:`NOT_RECORDED`): ``/di
 (the nodes' rates, ages and kernel paths: there are no nodes), ``pmc/cuts`` and
 ``force/reference`` (the cut log and a learned reference: the core run does not hand out the
 gate's cut records), ``force/measured`` (a dynamometer's reading, drawn by the node from its own
-random stream), and the text of ``detail`` in ``force/estimate`` and ``pmc/feed_override``
-(empty; the status and the reason are there). The signals the reader and replay take are equal.
+random stream), and the text of ``detail`` in ``pmc/feed_override`` (empty; the reason is
+there). The signals the reader and replay take are equal.
 """
 
 from __future__ import annotations
@@ -194,11 +194,12 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
                                  'force_rate_n_s': chain.estimated_force_rate_n_s[k],
                                  'current_q_a': chain.current_q_a[k],
                                  'friction_current_a': chain.friction_current_a[k],
-                                 'status': chain.estimate_status[k]}, None),
+                                 'status': chain.estimate_status[k],
+                                 'detail': _details(chain.estimate_detail, k)}, None),
             '/control/feed_command': ({
                 **_stamp(last), 'header.frame_id': FRAME,
                 'override_pct': chain.requested_override_pct[k],
-                'tracking_error_n': chain.estimated_force_n[k] - chain.reference_n[k],
+                'tracking_error_n': chain.tracking_error_n[k],
                 'sliding_variable': chain.sliding_variable[k],
                 'reference_force_n': chain.reference_n[k],
                 'controller': experiment.controller.controller,
@@ -225,6 +226,17 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
         _write_batch(writer, topics, pieces, end_ns[k])
         if progress is not None:
             progress(k.stop, n)
+
+
+def _details(details: dict[int, str], k: slice) -> Any:
+    """The estimate's details of blocks ``k`` (by block, where not empty) as a column."""
+    inside = [b for b in details if k.start <= b < k.stop]
+    if not inside:
+        return ''
+    column = np.zeros(k.stop - k.start, dtype=f'S{max(len(details[b].encode()) for b in inside)}')
+    for b in inside:
+        column[b - k.start] = details[b].encode()
+    return column
 
 
 def _encode(store: Any, topic: str, columns: dict[str, Any], count: int
