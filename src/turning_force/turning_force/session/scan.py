@@ -32,6 +32,7 @@ import mmap
 import struct
 import zlib
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -112,6 +113,11 @@ class McapScan:
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     damage: list[str] = field(default_factory=list)
     counts: dict[int, int] = field(default_factory=dict)   # messages read, by channel id
+
+
+def _prepared(body: bytes) -> bytes:
+    """A chunk record's body to its records, decompressed and checked."""
+    return _decompress(Chunk.read(_stream(body)))
 
 
 def _frame_size(data: bytes) -> int:
@@ -270,6 +276,11 @@ class _Scanner:
         # CRC) come first; these only stand in for what a lost chunk took with it.
         self.summary_records: list[tuple[Schema | Channel, int]] = []
         self.read_chunks: set[int] = set()
+        # Streaming: the next chunk decompressed on a thread while this one is decoded.
+        self._pool = ThreadPoolExecutor(1) if sink is not None else None
+        self._ahead: tuple[int, Future[bytes]] | None = None
+        self._chunk_list: list[int] = []
+        self._data_end = len(data)
 
     def add(self, record: Schema | Channel | Message, where: str) -> None:
         out = self.out
@@ -392,6 +403,20 @@ class _Scanner:
         self.out.damage.append(f'chunk at byte {pos}: its record length is damaged')
         return Opcode.CHUNK, bytes(self.data[pos + 9:pos + 9 + length])
 
+    def prefetch_after(self, pos: int) -> None:
+        """Start decompressing the chunk after the one at ``pos``, if it is whole."""
+        if self._pool is None:
+            return
+        later = bisect.bisect_right(self._chunk_list, pos)
+        if later >= len(self._chunk_list):
+            return
+        start = self._chunk_list[later]
+        limit = (self._chunk_list[later + 1] if later + 1 < len(self._chunk_list)
+                 else self._data_end)
+        found = self.record_at(start, limit)
+        if found is not None and found[0] == Opcode.CHUNK:
+            self._ahead = (start, self._pool.submit(_prepared, found[1]))
+
     def message_index(self, pos: int, limit: int) -> IntArray | None:
         """Where a chunk's messages start, from the message index records after it (at
         ``pos``); None where there are none or they are unreadable."""
@@ -425,11 +450,15 @@ class _Scanner:
 
     def streamed_chunk(self, pos: int, body: bytes, index: IntArray | None) -> None:
         """A chunk whose messages go to the sink as arrays (found from its message index where
-        it has one, else by walking its records)."""
+        it has one, else by walking its records). The next chunk is decompressed on a thread
+        meanwhile (what it gives, or what it raises, is taken when its turn comes: the scan's
+        order of work is the same)."""
         assert self.sink is not None
+        ahead, self._ahead = self._ahead, None
+        self.prefetch_after(pos)
         try:
-            chunk = Chunk.read(_stream(body))
-            data = _decompress(chunk)
+            data = (ahead[1].result() if ahead is not None and ahead[0] == pos
+                    else _prepared(body))
             indexed = _indexed_messages(data, index) if index is not None else None
             records, starts, lengths = indexed if indexed is not None else \
                 _chunk_messages(data)
@@ -452,6 +481,7 @@ class _Scanner:
         """Read records from ``pos`` until the data section ends or a record is unreadable;
         return where it stopped."""
         chunks = sorted(self.known_chunks)
+        self._chunk_list, self._data_end = chunks, end
         while pos < end:
             later = bisect.bisect_right(chunks, pos)
             limit = chunks[later] if later < len(chunks) else end   # no record spans a chunk
@@ -541,4 +571,9 @@ def scan_mcap(path: Path, sink: MessageSink | None = None) -> McapScan:
             out.damage.append('the file is empty')
             return out
         with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:
-            return _Scanner(path, data, sink).run()
+            scanner = _Scanner(path, data, sink)
+            try:
+                return scanner.run()
+            finally:
+                if scanner._pool is not None:
+                    scanner._pool.shutdown(wait=True, cancel_futures=True)
