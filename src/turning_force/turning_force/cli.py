@@ -4,7 +4,7 @@
   [--core]``: the node
   graph on the simulator in lock-step, recorded to DIR (default ``bags/<name>_<time>``), with a
   figure beside it and the metrics printed. ``--core`` runs the ROS-free core loop instead
-  (no session).
+  (no session; with ``--out DIR`` recorded to DIR with the graph's topics and messages).
 - ``replay BAG [--experiment FILE] [--set node.param=value ...] [--json]``: estimator,
   controller and quantiser
   re-run on the recorded currents; recorded and re-run side by side. ``--publish [--rate R]``
@@ -158,14 +158,29 @@ def _check_writable(out: Path, flag: str, new: bool) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     experiment = _load(args.experiment, args.params, args.set)
-    if args.core:
+    if args.core and args.out:
+        from turning_force.session.core_session import record_core
+
+        bag = Path(args.out)
+        _check_writable(bag, '--out', new=True)
+        progress: Callable[[int, int], None] | None = None
+        if not args.json and sys.stderr.isatty():   # (session.run imports rclpy)
+            from turning_force.session.run import print_progress
+
+            progress = print_progress
+        with _signals(defer=False):
+            recorded = record_core(experiment, bag, progress)
+        result = recorded.run.result
+        metrics = result.metrics
+        out: dict[str, Any] = {'experiment': experiment.run.name, 'kernel': result.kernel,
+                               'session': str(bag), 'metrics': metrics}
+    elif args.core:
         from turning_force.core.simulate import simulate
 
         with _signals(defer=False):
             result = simulate(experiment)
         metrics = result.metrics
-        out: dict[str, Any] = {'experiment': experiment.run.name, 'kernel': result.kernel,
-                               'metrics': metrics}
+        out = {'experiment': experiment.run.name, 'kernel': result.kernel, 'metrics': metrics}
     else:
         from turning_force.session.reader import read_session, recorded_metrics
         from turning_force.session.report import write_report
@@ -196,8 +211,10 @@ def _run(args: argparse.Namespace) -> int:
         paper = experiment.run.paper_steady_mean_abs_error_n
         print(f'  reproduces {experiment.run.paper_figure}'
               + (f' (paper: {paper:g} N average tracking error)' if paper else ''))
-    if 'session' in out:
+    if 'figure' in out:
         print(f'  session: {out["session"]}\n  figure:  {out["figure"]}')
+    elif 'session' in out:
+        print(f'  session: {out["session"]} (`turning-force report` draws it)')
     if 'kernel' in out:
         print(f'  core loop: {out["kernel"]}')
     _print_metrics('metrics' + (' (core loop)' if args.core else ' (from the session)'),
@@ -711,7 +728,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_params(run)
     add_set(run)
     run.add_argument('--json', action='store_true', help='print one JSON object')
-    run.add_argument('--core', action='store_true', help='the ROS-free core loop, no session')
+    run.add_argument('--core', action='store_true', help='the ROS-free core loop (recorded '
+                     'as the graph records it with --out; no session without)')
     run.set_defaults(handler=_run)
 
     rep = commands.add_parser('replay', help='re-run estimator and controller on sessions')

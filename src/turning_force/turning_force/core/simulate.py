@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -25,12 +26,12 @@ from turning_force.core import kernel
 from turning_force.core.control import ControlOutput
 from turning_force.core.errors import ConfigError, NoCutError
 from turning_force.core.experiment import Experiment
-from turning_force.core.loop import ControlChain
+from turning_force.core.loop import ChainStep, ControlChain
 from turning_force.core.metrics import compute_metrics
 from turning_force.core.overrides import get_table
-from turning_force.core.plant import LathePlant
+from turning_force.core.plant import LathePlant, PlantBlock
 
-__all__ = ['SimulationResult', 'simulate']
+__all__ = ['Keeper', 'SimulationResult', 'simulate']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -68,6 +69,26 @@ class SimulationResult:
         return f'python for {self.compiled_from} blocks while the kernel loaded, then compiled'
 
 
+class Keeper(Protocol):
+    """What a run keeps beside its trace, block by block
+    (:func:`turning_force.core.batch.run_core`: every DAQ sample, the estimate, the command and
+    the decision)."""
+
+    def python_block(self, k: int, block: PlantBlock, step: ChainStep,
+                     reference_n: float) -> None:
+        """Block ``k`` as the Python loop ran it; ``reference_n``, the controller's reference
+        when its command was made."""
+
+    def kernel_arrays(self) -> tuple[FloatArray, ...]:
+        """Where the kernel writes (``jit.run_core_kept``): the blocks' first stamps (n,), the
+        samples u, v, angle, feed rate (n, m each) and the chain's rows
+        (n, ``jit.CHAIN_COLUMNS``)."""
+        ...
+
+    def kernel_done(self, first: int) -> None:
+        """The kernel has written blocks ``first`` .. n - 1."""
+
+
 # Blocks per call of the kernel: the plant's noise for them is drawn in advance.
 CHUNK_BLOCKS = 4096
 # A run this long (or longer) loads the kernel (numba's import and the cached machine code:
@@ -89,6 +110,12 @@ def simulate(experiment: Experiment, compiled: bool | None = None,
     in Python before the kernel takes over (the hand-over, which the tests hold to the
     reference).
     """
+    return run_loop(experiment, compiled, python_blocks)
+
+
+def run_loop(experiment: Experiment, compiled: bool | None = None, python_blocks: int = 0,
+             keeper: Keeper | None = None) -> SimulationResult:
+    """:func:`simulate`, handing every block to ``keeper`` as well where one is given."""
     wall_start = time.perf_counter()
     table = get_table(experiment.bridge.override_table)
     chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
@@ -116,8 +143,11 @@ def simulate(experiment: Experiment, compiled: bool | None = None,
                       'load')
     k = 0
     while k < steps and (reason or k < python_blocks or kernel.loaded() is None):
+        reference_now = chain.controller.settings.reference_force_n   # before a teach-in
         block = plant.step(applied)
         step = chain.step(block.currents, inputs=block.inputs)
+        if keeper is not None:
+            keeper.python_block(k, block, step, reference_now)
         out = step.command or out   # the last command stands while the controller is silent
         rows[k] = (
             block.currents.t0_s + len(block.currents) * block.currents.sample_period_s,
@@ -130,7 +160,7 @@ def simulate(experiment: Experiment, compiled: bool | None = None,
     compiled_from = None
     if k < steps:
         compiled_from = k
-        _run_compiled(plant, chain, applied, out, rows, k, steps)
+        _run_compiled(plant, chain, applied, out, rows, k, steps, keeper)
     elif not reason and steps:
         reason = 'the run ended before the kernel had loaded'
     trace = {name: rows[:, i].copy() for i, name in enumerate(TRACE_NAMES)}
@@ -148,7 +178,7 @@ def simulate(experiment: Experiment, compiled: bool | None = None,
 
 
 def _run_compiled(plant: LathePlant, chain: ControlChain, applied: float, out: ControlOutput,
-                  rows: FloatArray, first: int, steps: int) -> None:
+                  rows: FloatArray, first: int, steps: int, keeper: Keeper | None = None) -> None:
     """Blocks ``first`` .. ``steps - 1`` on the kernel, from the Python objects' state now."""
     from turning_force.core.kernel import pack
 
@@ -186,5 +216,13 @@ def _run_compiled(plant: LathePlant, chain: ControlChain, applied: float, out: C
             drawn = rng.normal(0.0, s.current_noise_a, (blocks, 2, n))
             noise_u = np.ascontiguousarray(drawn[:, 0, :]).ravel()
             noise_v = np.ascontiguousarray(drawn[:, 1, :]).ravel()
-        applied = jit.run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, ep, es, cp, cs,
-                               clevels, gp, gs, glevels, start, end, applied, last, rows)
+        if keeper is None:
+            applied = jit.run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, ep, es, cp,
+                                   cs, clevels, gp, gs, glevels, start, end, applied, last, rows)
+        else:
+            t0, u, v, angle, feed, chain_rows = keeper.kernel_arrays()
+            applied = jit.run_core_kept(pp, ps, times, depths, noise_u, noise_v, noise_f, ep,
+                                        es, cp, cs, clevels, gp, gs, glevels, start, end,
+                                        applied, last, rows, t0, u, v, angle, feed, chain_rows)
+    if keeper is not None:
+        keeper.kernel_done(first)

@@ -49,14 +49,19 @@ class Calibration:
 
 def _steady(session: Session, settle_s: float) -> CurrentBlock:
     """The session's blocks after ``settle_s``, joined into one."""
-    start = session.blocks[0].t0_s + settle_s
-    blocks = [b for b in session.blocks if b.t0_s >= start]
-    if not blocks:
+    starts = session.block_starts_s
+    keep = np.flatnonzero(starts >= starts[0] + settle_s)
+    if not keep.size:
         raise BagError(f'{session.path}: nothing left after the first {settle_s} s')
     if session.has_truth and np.nanmax(np.abs(session.signals['force_n'])) > 1.0:
         raise BagError(f'{session.path}: the tool cut (force up to '
                        f'{np.nanmax(session.signals["force_n"]):.0f} N): not an air cut')
     fields = ('phase_u_a', 'phase_v_a', 'rotor_angle_rad', 'feed_rate_mm_min')
+    c = session.currents
+    if c is not None:   # the arrays, rows kept, one after the other
+        return CurrentBlock(float(starts[keep[0]]), c.sample_period_s,
+                            *(getattr(c, f)[keep[0]:].reshape(-1) for f in fields))
+    blocks = session.blocks[int(keep[0]):]
     return CurrentBlock(blocks[0].t0_s, blocks[0].sample_period_s,
                         *(np.concatenate([getattr(b, f) for b in blocks]) for f in fields))
 

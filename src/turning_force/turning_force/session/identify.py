@@ -86,9 +86,11 @@ def _measured_per_block(session: Session, axis: str) -> FloatArray | None:
     values = np.array([v for _, v in readings])
     order = np.argsort(times)
     times, values = times[order], values[order]
-    starts = np.array([b.t0_s for b in session.blocks])
+    starts = session.block_starts_s
     period = session.blocks[0].sample_period_s
-    ends = starts + np.array([len(b) for b in session.blocks]) * period
+    c = session.currents
+    ends = starts + (np.full(starts.size, c.samples_per_block) if c is not None
+                     else np.array([len(b) for b in session.blocks])) * period
     # Half a sample of slack: a stamp on the block's last sample is inside it.
     first = np.searchsorted(times, starts - 0.5 * period, side='left')
     last = np.searchsorted(times, ends - 0.5 * period, side='left')
@@ -106,9 +108,10 @@ def recording_from_session(session: Session, axis: str = 'z') -> Recording:
         raise BagError(f'{session.path}: no recorded parameters or experiment file: the '
                        'programmed feed, spindle speed and current map (Eq. 26) are needed')
     e = session.experiment
-    lengths = {len(b) for b in session.blocks}
-    periods = {b.sample_period_s for b in session.blocks}
-    if len(lengths) != 1 or len(periods) != 1:
+    c = session.currents
+    if c is None:   # the reader keeps blocks as blocks only where they differ
+        lengths = {len(b) for b in session.blocks}
+        periods = {b.sample_period_s for b in session.blocks}
         raise BagError(f'{session.path}: blocks of {sorted(lengths)} samples at '
                        f'{sorted(periods)} s: identification needs one block size and rate')
     answered = session.signals['answered_override_pct']
@@ -117,19 +120,18 @@ def recording_from_session(session: Session, axis: str = 'z') -> Recording:
         if not math.isfinite(applied[k]):
             applied[k] = applied[k - 1]
     status = session.signals['estimate_status']
-    currents = np.array([clarke_park(b.phase_u_a, b.phase_v_a, b.rotor_angle_rad)[1]
-                         for b in session.blocks])
+    currents = clarke_park(c.phase_u_a, c.phase_v_a, c.rotor_angle_rad)[1]
     return Recording(
         name=str(session.path),
-        sample_period_s=session.blocks[0].sample_period_s,
+        sample_period_s=c.sample_period_s,
         programmed_feed_rate_mm_min=e.controller.programmed_feed_rate_mm_min,
         spindle_speed_rpm=e.controller.spindle_speed_rpm,
         current_map=e.estimator.current_map,
-        block_start_s=np.array([b.t0_s for b in session.blocks]),
+        block_start_s=c.t0_s.copy(),
         override_pct=applied,
         estimated_force_n=session.signals['estimated_force_n'],
         saturated=status == int(EstimateStatus.SATURATED),
-        feed_rate_mm_min=np.array([b.feed_rate_mm_min for b in session.blocks]),
+        feed_rate_mm_min=c.feed_rate_mm_min,
         current_q_a=currents,
         measured_force_n=_measured_per_block(session, axis))
 

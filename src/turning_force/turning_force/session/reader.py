@@ -20,20 +20,18 @@ a warning too.
 
 from __future__ import annotations
 
-import itertools
 import json
-import struct
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import Any, cast, overload
 
 import numpy as np
 import numpy.typing as npt
 import yaml
-from rosbags.serde import SerdeError
+from rosbags.interfaces import Nodetype
 from rosbags.typesys import (
     Stores,
     TypesysError,
@@ -43,11 +41,13 @@ from rosbags.typesys import (
 )
 from rosbags.typesys.store import Typestore
 
+from turning_force.core.batch import CurrentArrays
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import Experiment, build_experiment, parse_experiment
 from turning_force.core.metrics import compute_metrics
 from turning_force.core.shopfloor import CutRecord, InputValues
+from turning_force.session import codec
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
     CUSTOM_PARAMETERS,
@@ -57,13 +57,15 @@ from turning_force.session.bag import (
     BagError,
     typestore,
 )
-from turning_force.session.scan import McapScan, scan_mcap
+from turning_force.session.codec import DECODE_ERRORS, Table, TableBuilder
+from turning_force.session.scan import McapScan, MessageSink, scan_mcap
 
 __all__ = ['DECODE_ERRORS', 'Recording', 'Session', 'TopicInfo', 'estimate_metrics',
            'read_recording', 'read_session', 'recorded_metrics', 'recorded_reachable',
            'session_typestore']
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
 
 ANSWERS = ('force/estimate', 'control/feed_command', 'pmc/feed_override', 'sim/cutting_state')
 READ = ('servo/currents', *ANSWERS, 'pmc/cuts')
@@ -74,9 +76,17 @@ MSGTYPES = {
     'pmc/feed_override': 'turning_force_msgs/msg/FeedOverride',
     'sim/cutting_state': 'turning_force_msgs/msg/CuttingState',
 }
-# What rosbags' generated CDR deserialisers raise on damaged bytes.
-DECODE_ERRORS = (SerdeError, ValueError, IndexError, KeyError, TypeError, struct.error,
-                 OverflowError, MemoryError)
+# The fields of the answers that the signals (and the arming) come from; servo/currents and
+# pmc/cuts are kept whole.
+STAMP = ('header.stamp.sec', 'header.stamp.nanosec')
+KEPT = {
+    'force/estimate': (*STAMP, 'force_n', 'force_rate_n_s', 'status'),
+    'control/feed_command': (*STAMP, 'override_pct', 'reference_force_n', 'sliding_variable',
+                             'reference_reachable'),
+    'pmc/feed_override': (*STAMP, 'applied_pct', 'reason', 'armed', 'program_enable',
+                          'threading', 'operator_dial_pct', 'engaged', 'alarm', 'stop_request'),
+    'sim/cutting_state': (*STAMP, 'force_n', 'depth_of_cut_mm', 'feed_mm_rev', 'override_pct'),
+}
 SAFE_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)   # libyaml's where installed
 SHOWN = 3   # damaged stretches and gaps named in one line; the rest are counted
 
@@ -113,11 +123,12 @@ class Recording:
     """The raw messages of a session folder, checked against what the session says it holds.
 
     ``messages`` maps each topic (its full name) to its (log time [ns], CDR bytes) in file
-    order. ``missing`` says what is known to be missing or unreadable, one phrase each;
-    ``damage`` what is damaged in the MCAP file ``file`` (which loses messages only where
-    ``missing`` says so); ``note`` what a repair recorded; ``definitions`` each topic's message
-    definition in the file (type, encoding, text). :meth:`check` turns them into an error or a
-    warning.
+    order (empty where the session was streamed: :func:`read_session`); ``counts`` how many
+    messages of each were read. ``missing`` says what is known to be missing or unreadable,
+    one phrase each; ``damage`` what is damaged in the MCAP file ``file`` (which loses
+    messages only where ``missing`` says so); ``note`` what a repair recorded;
+    ``definitions`` each topic's message definition in the file (type, encoding, text).
+    :meth:`check` turns them into an error or a warning.
     """
 
     path: Path
@@ -129,6 +140,7 @@ class Recording:
     note: str = ''
     file: str = ''
     definitions: dict[str, tuple[str, str, str]] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)   # messages read, per topic
 
     def recorded(self, relative: str) -> int | None:
         """How many messages of a topic (by its relative name) were recorded, if known."""
@@ -188,10 +200,9 @@ def _mcap_file(path: Path, info: dict[str, Any]) -> Path:
     return path / str(files[0])
 
 
-def read_recording(path: str | Path) -> Recording:
-    """Every message a session folder holds, and what is missing from it (see
-    :meth:`Recording.check`)."""
-    path = Path(path)
+def _open(path: Path) -> tuple[dict[str, Any], dict[str, str], dict[str, TopicInfo]]:
+    """A session folder's metadata.yaml (a :class:`BagError` saying what the folder is if it
+    has none)."""
     if not (path / 'metadata.yaml').is_file():
         found = sorted(path.glob('*.mcap')) if path.is_dir() else []
         if found:
@@ -199,24 +210,40 @@ def read_recording(path: str | Path) -> Recording:
                            f'killed before it wrote one): `turning-force repair {path}` '
                            'rebuilds it from what the file holds')
         raise BagError(f'{path}: not a rosbag2 folder (no metadata.yaml)')
-    info, custom, topics = _metadata(path)
-    mcap = _mcap_file(path, info)
+    return _metadata(path)
+
+
+def _scan(mcap: Path, sink: MessageSink | None = None) -> McapScan:
     try:
-        scan = scan_mcap(mcap)
+        return scan_mcap(mcap, sink)
     except OSError as exc:
         raise BagError(f'{mcap}: cannot read the session: {exc.strerror or exc}') from exc
-    return _recording(path, custom, topics, scan)
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Every message a session folder holds, and what is missing from it (see
+    :meth:`Recording.check`)."""
+    path = Path(path)
+    info, custom, topics = _open(path)
+    return _recording(path, custom, topics, _scan(_mcap_file(path, info)))
 
 
 def _recording(path: Path, custom: dict[str, str], topics: dict[str, TopicInfo],
                scan: McapScan) -> Recording:
+    """What the scan read, checked against metadata.yaml (the messages themselves only where
+    the scan kept them: without a sink)."""
     messages: dict[str, list[tuple[int, bytes]]] = {}
+    counts: Counter[str] = Counter()
     definitions: dict[str, tuple[str, str, str]] = {}
     problems: list[str] = []
     for message in scan.messages:
         channel = scan.channels.get(message.channel_id)
         if channel is not None:
             messages.setdefault(channel.topic, []).append((message.log_time, message.data))
+    for index, count in scan.counts.items():
+        channel = scan.channels.get(index)
+        if channel is not None:
+            counts[channel.topic] += count
     for channel in scan.channels.values():
         schema = scan.schemas.get(channel.schema_id)
         recorded = topics.get(channel.topic)
@@ -232,21 +259,22 @@ def _recording(path: Path, custom: dict[str, str], topics: dict[str, TopicInfo],
             definitions[channel.topic] = (schema.name, schema.encoding, schema.data.decode())
         except UnicodeDecodeError:
             problems.append(f'{channel.topic}: its message definition in the file is damaged')
-    recording = Recording(path, custom, topics, messages, definitions=definitions)
+    recording = Recording(path, custom, topics, messages, definitions=definitions,
+                          counts=dict(counts))
     if CUSTOM_RECORDING in custom:
         problems.append('the recording was never closed (the recorder was killed, or its '
                         'disk filled): metadata.yaml has no message counts to check against')
     else:
         short = []
         for name, topic in topics.items():
-            got, expected = len(messages.get(name, [])), topic.count or 0
+            got, expected = counts.get(name, 0), topic.count or 0
             if got < expected:
                 short.append((name, got, expected))
             elif got > expected:
                 problems.append(f'{name}: {got} messages where metadata.yaml counts {expected}')
         if short:
             total = sum(t.count or 0 for t in topics.values())
-            read = sum(len(m) for m in messages.values())
+            read = sum(counts.values())
             shown = ', '.join(f'{_topic(n).lstrip("/")} {g} of {e}' for n, g, e in short)
             problems.append(f'{total - read} of {total} recorded messages missing ({shown})')
     recording.missing = problems
@@ -269,17 +297,19 @@ def _repair_note(text: str) -> str:
 class Session:
     """A recorded session, per control block.
 
-    ``t_s`` is the end of each block (as the core loop's traces); ``answer_stamps_ns`` the stamp
-    of its last sample, which the estimate, command and override that answer it carry.
-    Arrays hold NaN where a block had no answer (the graph did not act on it). ``warning`` says
-    what is missing from a partial or repaired session (empty when nothing is);
-    ``message_counts`` how many messages of each topic were read.
+    ``currents`` the blocks of ``servo/currents`` as arrays (:class:`CurrentArrays`; None only
+    for a session whose blocks differ in length or sample period, which :attr:`blocks` still
+    gives). ``t_s`` is the end of each block (as the core loop's traces);
+    ``answer_stamps_ns`` the stamp of its last sample, which the estimate, command and
+    override that answer it carry. Arrays hold NaN where a block had no answer (the graph did
+    not act on it). ``warning`` says what is missing from a partial or repaired session (empty
+    when nothing is); ``message_counts`` how many messages of each topic were read.
     """
 
     path: Path
     custom_data: dict[str, str]
     experiment: Experiment | None
-    blocks: list[CurrentBlock]
+    currents: CurrentArrays | None
     t_s: FloatArray
     answer_stamps_ns: npt.NDArray[np.int64]
     signals: dict[str, FloatArray] = field(default_factory=dict)
@@ -290,6 +320,22 @@ class Session:
     arm_changes: list[tuple[float, bool]] = field(default_factory=list)
     # The cut log the bridge recorded (pmc/cuts), in order.
     cuts: list[CutRecord] = field(default_factory=list)
+    warning: str = ''
+    message_counts: dict[str, int] = field(default_factory=dict)   # read, per topic
+    # The blocks of a session whose blocks differ (no ``currents`` then).
+    ragged: list[CurrentBlock] | None = None
+
+    @property
+    def blocks(self) -> Sequence[CurrentBlock]:
+        """The blocks one by one (views of :attr:`currents`), for callers that take blocks."""
+        return self.ragged if self.ragged is not None else _Blocks(self.currents)
+
+    @property
+    def block_starts_s(self) -> FloatArray:
+        """The time of each block's first sample [s]."""
+        if self.currents is not None:
+            return self.currents.t0_s
+        return np.array([b.t0_s for b in self.blocks])
 
     def inputs(self, k: int) -> InputValues | None:
         """The machine's inputs the decision answering block ``k`` saw; None where the session
@@ -302,12 +348,34 @@ class Session:
         return InputValues(None if enable < 0 else bool(enable),
                            None if threading < 0 else bool(threading),
                            None if np.isnan(dial) else float(dial))
-    warning: str = ''
-    message_counts: dict[str, int] = field(default_factory=dict)   # read, per topic
 
     @property
     def versions(self) -> dict[str, str]:
         return dict(json.loads(self.custom_data.get(CUSTOM_VERSIONS, '{}')))
+
+
+class _Blocks(Sequence[CurrentBlock]):
+    """:class:`CurrentArrays` as a sequence of :class:`CurrentBlock` views, made on access."""
+
+    def __init__(self, currents: CurrentArrays | None) -> None:
+        self._currents = currents
+
+    def __len__(self) -> int:
+        return 0 if self._currents is None else len(self._currents)
+
+    @overload
+    def __getitem__(self, k: int) -> CurrentBlock: ...
+
+    @overload
+    def __getitem__(self, k: slice) -> list[CurrentBlock]: ...
+
+    def __getitem__(self, k: int | slice) -> CurrentBlock | list[CurrentBlock]:
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        n = len(self)
+        if not -n <= k < n or self._currents is None:
+            raise IndexError(f'block {k} of {n}')
+        return self._currents.block(k % n)
 
 
 # Settings added after sessions were recorded whose default behaves differently from what
@@ -335,16 +403,15 @@ def _experiment(path: Path, custom: dict[str, str]) -> Experiment | None:
     return None
 
 
-def _check_types(recording: Recording) -> None:
+def _check_types(path: Path, topics: dict[str, TopicInfo]) -> None:
     """The topics the signals come from must carry our messages: anything else is not a
     turning_force session."""
-    path = recording.path
-    names = {_topic(t): t for t in recording.topics}
+    names = {_topic(t): t for t in topics}
     if 'servo/currents' not in names:
-        listed = ', '.join(sorted(recording.topics)) or 'no topics'
+        listed = ', '.join(sorted(topics)) or 'no topics'
         raise BagError(f'{path}: no servo/currents topic ({listed}): not a turning_force '
                        'session')
-    for name, topic in recording.topics.items():
+    for name, topic in topics.items():
         relative = _topic(name)
         if relative in MSGTYPES and topic.msgtype != MSGTYPES[relative]:
             raise BagError(f'{path}: {name} is {topic.msgtype}, not {MSGTYPES[relative]}: '
@@ -357,185 +424,372 @@ def session_typestore(definitions: tuple[tuple[str, str, str], ...]) -> Typestor
     MCAP's schemas hold them): a session recorded before a message gained a field decodes with
     the definition it was written with, as rosbags' AnyReader does it. Ours stand in for a type
     the session does not define."""
-    types = dict(typestore().fielddefs)
+    given: dict[str, Any] = {}
     for msgtype, encoding, text in definitions:
         if encoding == 'ros2msg':
-            types.update(get_types_from_msg(text, msgtype))
+            given.update(get_types_from_msg(text, msgtype))
         elif encoding == 'ros2idl':
             separator = '=' * 80 + '\n'
             parts = ([p.split('\n', 1)[1] for p in text.split(separator)[1:]]
                      if text.startswith(f'{separator}IDL: ') else [text])
             for idl in parts:
-                types.update(get_types_from_idl(idl))
+                given.update(get_types_from_idl(idl))
+    # The given types and those they use, no more: a store of every ROS type takes a second.
+    types: dict[str, Any] = {}
+    wanted = [t for t, _, _ in definitions] + list(given)
+    while wanted:
+        name = wanted.pop()
+        if name in types:
+            continue
+        if name in given:
+            types[name] = given[name]
+        else:   # ours (building the store of every ROS type only when it is needed)
+            ours = typestore().fielddefs
+            if name not in ours:
+                continue
+            types[name] = ours[name]
+        for _, (kind, detail) in types[name][1]:
+            inner = detail if kind == Nodetype.NAME else (
+                detail[0][1] if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE)
+                and detail[0][0] == Nodetype.NAME else None)
+            if isinstance(inner, str):
+                wanted.append(inner)
     store = get_typestore(Stores.EMPTY)
     store.register(types)
     return store
 
 
-def _decode(recording: Recording) -> tuple[dict[str, list[Any]], list[str]]:
-    """The messages of the topics the signals come from, deserialised with the definitions
-    they were recorded with; and what failed."""
-    problems: list[str] = []
-    wanted = {name: topic for name, topic in recording.topics.items()
-              if _topic(name) in READ and name in recording.definitions}
-    definitions = tuple(sorted({recording.definitions[name] for name in wanted}))
-    try:
-        store = session_typestore(definitions)
-    except (TypesysError, ValueError, IndexError) as exc:
-        raise BagError(f'{recording.path}: the message definitions in {recording.file} are '
-                       f'unreadable: {exc}') from exc
-    for name, topic in wanted.items():
-        ours = store.hash_rihs01(topic.msgtype)
-        if topic.type_hash and topic.type_hash != ours:
-            problems.append(f'{name}: the definition of {topic.msgtype} in the file does not '
-                            f"match metadata.yaml's hash")
-    decoded: dict[str, list[Any]] = {topic: [] for topic in READ}
-    failed: Counter[str] = Counter()
-    for name, topic in wanted.items():
-        relative = _topic(name)
-        for _, raw in recording.messages.get(name, []):
+class _Decoder:
+    """The message sink of :func:`read_session`: each chunk's messages of the topics the signals
+    come from, decoded as arrays (:mod:`turning_force.session.codec`) with the definition each
+    was recorded with, into arrays that grow chunk by chunk. Nothing else is kept of them."""
+
+    def __init__(self, path: Path, topics: dict[str, TopicInfo]) -> None:
+        self.path = path
+        self.topics = topics
+        # By channel id: (store, type, relative topic, builder), or None: not decoded here.
+        self._channels: dict[int, tuple[Typestore, str, str, TableBuilder] | None] = {}
+        self._later: list[tuple[int, bytes]] = []   # messages of channels not described yet
+        self.failed: Counter[str] = Counter()
+        self.problems: list[str] = []
+
+    def _channel(self, scan: McapScan, index: int, final: bool
+                 ) -> tuple[Typestore, str, str, TableBuilder] | None:
+        if index in self._channels:
+            return self._channels[index]
+        channel = scan.channels.get(index)
+        if channel is None:
+            if final:
+                self._channels[index] = None
+            return None
+        relative = _topic(channel.topic)
+        topic = self.topics.get(channel.topic)
+        schema = scan.schemas.get(channel.schema_id)
+        found: tuple[Typestore, str, str, TableBuilder] | None = None
+        if relative in READ and topic is not None and schema is not None \
+                and schema.name == topic.msgtype:
             try:
-                decoded[relative].append(store.deserialize_cdr(raw, topic.msgtype))
-            except DECODE_ERRORS:
-                failed[relative] += 1
-    problems += [f'{n} {topic} messages cannot be decoded' for topic, n in failed.items()]
-    return decoded, problems
+                definition = (schema.name, schema.encoding, schema.data.decode())
+            except UnicodeDecodeError:
+                definition = None   # _recording names it
+            if definition is not None:
+                try:
+                    store = session_typestore((definition,))
+                except (TypesysError, ValueError, IndexError) as exc:
+                    raise BagError(f'{self.path}: the message definitions in '
+                                   f'{scan.path.name} are unreadable: {exc}') from exc
+                if topic.type_hash and topic.type_hash != store.hash_rihs01(topic.msgtype):
+                    self.problems.append(f'{channel.topic}: the definition of '
+                                         f'{topic.msgtype} in the file does not match '
+                                         "metadata.yaml's hash")
+                if codec.supports(store, topic.msgtype):
+                    builder = TableBuilder(codec.fields(store, topic.msgtype), topic.msgtype,
+                                           topic.count or 0, KEPT.get(relative))
+                    found = (store, topic.msgtype, relative, builder)
+                else:
+                    self.problems.append(f'{channel.topic}: {topic.msgtype} as the file '
+                                         'defines it has no fixed layout')
+        self._channels[index] = found
+        return found
+
+    def take(self, scan: McapScan, data: npt.NDArray[np.uint8], channels: IntArray,
+             log_times: IntArray, offsets: IntArray, sizes: IntArray) -> None:
+        """One chunk's messages (:data:`turning_force.session.scan.MessageSink`)."""
+        del log_times
+        for index in np.flatnonzero(np.bincount(channels)).tolist():
+            chosen = channels == index if channels.size > 1 else np.ones(1, dtype=bool)
+            found = self._channel(scan, index, final=False)
+            if found is None:
+                if index not in self._channels:   # described later in the file, maybe
+                    self._later += [(index, bytes(data[o:o + n])) for o, n in zip(
+                        offsets[chosen].tolist(), sizes[chosen].tolist(), strict=True)]
+                continue
+            self._decode(found, data, offsets[chosen], sizes[chosen])
+
+    def _decode(self, found: tuple[Typestore, str, str, TableBuilder],
+                data: npt.NDArray[np.uint8], offsets: IntArray, sizes: IntArray) -> None:
+        store, msgtype, relative, builder = found
+        table, read = codec.decode(store, msgtype, data, offsets, sizes,
+                                   (f.path for f in builder.leaves))
+        builder.append(table)
+        if read.size < offsets.size:
+            self.failed[relative] += int(offsets.size - read.size)
+
+    def finish(self, scan: McapScan) -> dict[str, Table]:
+        """The tables of the topics read, by relative name (messages of channels the file
+        describes only after them, or in its summary, decoded now)."""
+        for index, raw in self._later:
+            found = self._channel(scan, index, final=True)
+            if found is not None:
+                data = np.frombuffer(raw, dtype=np.uint8)
+                self._decode(found, data, np.zeros(1, dtype=np.int64),
+                             np.array([len(raw)], dtype=np.int64))
+        self._later.clear()
+        tables: dict[str, list[Table]] = {}
+        for found in self._channels.values():
+            if found is not None and found[3].count:
+                tables.setdefault(found[2], []).append(found[3].finish())
+        return {topic: _joined(parts) for topic, parts in tables.items()}
 
 
-def _blocks(path: Path, currents: list[Any]) -> tuple[list[tuple[int, CurrentBlock]], list[str]]:
-    """(stamp of the last sample [ns], block) in time order, and what is wrong with them:
-    malformed blocks, and gaps and overlaps in the stamps (a block follows the one before one
-    block length later)."""
+def _joined(tables: list[Table]) -> Table:
+    """Tables of one topic from several channels: the columns they share, one after the
+    other."""
+    if len(tables) == 1:
+        return tables[0]
+    shared = [p for p in tables[0].columns if all(p in t.columns for t in tables)]
+    out = Table(tables[0].msgtype, sum(t.count for t in tables))
+    for path in shared:
+        parts = [t.columns[path] for t in tables]
+        if parts[0].dtype.kind == 'S':
+            width = max(p.dtype.itemsize for p in parts)
+            parts = [p.astype(f'S{width}') for p in parts]
+        out.columns[path] = np.concatenate(parts)
+        if path in tables[0].lengths:
+            out.lengths[path] = np.concatenate([t.lengths[path] for t in tables])
+    return out
+
+
+def _stamps(table: Table) -> IntArray:
+    """Each message's header stamp [ns]."""
+    sec = table.columns['header.stamp.sec'].astype(np.int64)
+    stamps: IntArray = sec * 1_000_000_000 + table.columns['header.stamp.nanosec'].astype(
+        np.int64)
+    return stamps
+
+
+def _rows(table: Table, path: str) -> FloatArray | None:
+    """A sequence of samples as (blocks, samples), if every message has as many."""
+    if path not in table.lengths:
+        return None
+    try:
+        return np.asarray(table.rows(path), dtype=np.float64)
+    except ValueError:
+        return None
+
+
+def _blocks(table: Table | None) -> tuple[CurrentArrays | None, list[CurrentBlock] | None,
+                                          IntArray, list[str]]:
+    """The blocks of servo/currents in time order (as arrays where they are of one length and
+    sample period, else as blocks), the stamp of each one's last sample [ns], and what is
+    wrong with them: malformed blocks, and gaps and overlaps in the stamps (a block follows
+    the one before one block length later)."""
     problems: list[str] = []
-    received: list[tuple[int, int, CurrentBlock]] = []   # (first stamp, last stamp, block)
-    malformed = 0
-    for msg in currents:
-        try:
-            period = float(msg.sample_period_s)
-            arrays = [np.asarray(a, dtype=float) for a in (
-                msg.phase_u_a, msg.phase_v_a, msg.rotor_angle_rad, msg.feed_rate_mm_min)]
-        except (AttributeError, ValueError):   # another definition of ServoCurrents
-            malformed += 1
-            continue
-        if not (np.isfinite(period) and 0 < period < 1.0 and arrays[0].size
-                and all(a.size == arrays[0].size for a in arrays)):
-            malformed += 1
-            continue
-        stamp = _ns(msg.header.stamp)
-        block = CurrentBlock(stamp * 1e-9, period, *arrays)
-        received.append((stamp, stamp + round((len(block) - 1) * period * 1e9), block))
+    names = ('phase_u_a', 'phase_v_a', 'rotor_angle_rad', 'feed_rate_mm_min')
+    if table is None or not table.count:
+        return None, None, np.zeros(0, dtype=np.int64), problems
+    if not all(n in table.lengths for n in names) or 'sample_period_s' not in table.columns:
+        problems.append(f'{table.count} servo/currents blocks malformed (no samples, arrays '
+                        'of different lengths or a bad sample period)')
+        return None, None, np.zeros(0, dtype=np.int64), problems
+    period = table.columns['sample_period_s'].astype(np.float64)
+    lengths = table.lengths['phase_u_a']
+    good = (np.isfinite(period) & (period > 0) & (period < 1.0) & (lengths > 0))
+    for name in names[1:]:
+        good &= table.lengths[name] == lengths
+    malformed = int(np.count_nonzero(~good))
     if malformed:
         problems.append(f'{malformed} servo/currents blocks malformed (no samples, arrays of '
                         'different lengths or a bad sample period)')
-    received.sort(key=lambda item: item[0])
+        table = table.take(np.flatnonzero(good))
+        period, lengths = period[good], lengths[good]
+    first = _stamps(table)
+    order = np.argsort(first, kind='stable')
+    if np.any(order != np.arange(order.size)):
+        table, first = table.take(order), first[order]
+        period, lengths = period[order], lengths[order]
+    span_ns = np.round((lengths - 1) * period * 1e9).astype(np.int64)
+    last = first + span_ns
+    # Gaps: each block against the one after it.
+    length_ns = lengths[:-1] * period[:-1] * 1e9
+    gap = first[1:] - first[:-1] - length_ns
+    flagged = np.flatnonzero(np.abs(gap) > 0.5 * period[:-1] * 1e9)
     gaps: list[str] = []
     lost = 0
-    for (first, _, block), (after, _, _) in itertools.pairwise(received):
-        length_ns = len(block) * block.sample_period_s * 1e9
-        gap = after - first - length_ns
-        if abs(gap) <= 0.5 * block.sample_period_s * 1e9:
-            continue
-        if gap < 0:
+    for k in flagged.tolist():
+        after = int(first[k + 1])
+        if gap[k] < 0:
             gaps.append(f'blocks overlap at {after * 1e-9:.3f} s')
             continue
-        count = max(round(gap / length_ns), 1)
+        count = max(round(float(gap[k] / length_ns[k])), 1)
         lost += count
-        gaps.append(f'{count} at {(first + length_ns) * 1e-9:.3f}-{after * 1e-9:.3f} s')
+        gaps.append(f'{count} at {(int(first[k]) + float(length_ns[k])) * 1e-9:.3f}-'
+                    f'{after * 1e-9:.3f} s')
     if gaps:
         problems.append(f'servo/currents stamps: {lost} blocks missing ({_listed(gaps)})')
-    return [(last, block) for _, last, block in received], problems
+    t0: FloatArray = first.astype(np.float64) * 1e-9
+    samples = [_rows(table, name) for name in names]
+    uniform = bool(np.all(period == period[0])) and all(a is not None for a in samples)
+    if uniform:
+        u, v, angle, feed = cast('list[FloatArray]', samples)
+        return (CurrentArrays(t0, float(period[0]), u, v, angle, feed), None, last, problems)
+    starts = np.concatenate([[0], np.cumsum(lengths)])
+    columns = [np.asarray(table.columns[name], dtype=np.float64) for name in names]
+    blocks = [CurrentBlock(float(t0[k]), float(period[k]),
+                           *(c[starts[k]:starts[k + 1]] for c in columns))
+              for k in range(table.count)]
+    return None, blocks, last, problems
+
+
+def _answer_column(table: Table | None, where: IntArray, path: str) -> FloatArray:
+    """A field of the messages answering each block (``where``: :func:`_answers`), as floats;
+    NaN where no message answers or the session's definition has no such field."""
+    out = np.full(where.size, np.nan)
+    if table is None or path not in table.columns or not table.count:
+        return out
+    found = where >= 0
+    out[found] = table.columns[path][where[found]].astype(np.float64)
+    return out
+
+
+def _answers(table: Table | None, stamps: IntArray) -> IntArray:
+    """The index of the message of ``table`` answering each block (stamped as its last sample;
+    the first in the file where several are), -1 where none does."""
+    if table is None or not table.count or 'header.stamp.sec' not in table.columns:
+        return np.full(stamps.size, -1, dtype=np.int64)
+    carried = _stamps(table)
+    unique, first = np.unique(carried, return_index=True)   # the first of each stamp
+    at = np.clip(np.searchsorted(unique, stamps), 0, unique.size - 1)
+    found: IntArray = np.where(unique[at] == stamps, first[at], -1).astype(np.int64)
+    return found
+
+
+def _cuts(table: Table | None) -> list[CutRecord]:
+    if table is None:
+        return []
+    c = table.columns
+    names = ('index', 'start_s', 'end_s', 'programmed_feed_s', 'max_force_n', 'mean_force_n',
+             'min_override_pct', 'overload_events', 'breakage', 'reachable_fraction',
+             'learned', 'complete')
+    if not all(n in c for n in (*names, 'tool')):
+        return []
+    return [CutRecord(int(c['index'][k]), table.text('tool', k), float(c['start_s'][k]),
+                      float(c['end_s'][k]), float(c['programmed_feed_s'][k]),
+                      float(c['max_force_n'][k]), float(c['mean_force_n'][k]),
+                      float(c['min_override_pct'][k]), int(c['overload_events'][k]),
+                      bool(c['breakage'][k]), float(c['reachable_fraction'][k]),
+                      bool(c['learned'][k]), bool(c['complete'][k]))
+            for k in range(table.count)]
 
 
 def read_session(path: str | Path, partial: bool = False) -> Session:
     """Read a session folder written by ``session_recorder``.
 
-    Raises :class:`BagError` naming the bag and what is missing if anything is (see the module
-    docstring), unless ``partial``: then :attr:`Session.warning` says it.
+    Streams through the MCAP file chunk by chunk, decoding the messages of the topics the
+    signals come from as arrays. Raises :class:`BagError` naming the bag and what is missing if
+    anything is (see the module docstring), unless ``partial``: then :attr:`Session.warning`
+    says it.
     """
-    recording = read_recording(path)
-    path = recording.path
-    _check_types(recording)
-    decoded, failed = _decode(recording)
-    received, gaps = _blocks(path, decoded['servo/currents'])
+    path = Path(path)
+    info, custom, topics = _open(path)
+    _check_types(path, topics)
+    decoder = _Decoder(path, topics)
+    scan = _scan(_mcap_file(path, info), decoder.take)
+    recording = _recording(path, custom, topics, scan)
+    tables = decoder.finish(scan)
+    failed = [*decoder.problems,
+              *(f'{n} {topic} messages cannot be decoded' for topic, n in decoder.failed.items())]
+    currents, ragged, stamps, gaps = _blocks(tables.get('servo/currents'))
+    count = len(currents) if currents is not None else len(ragged or [])
     expected = recording.recorded('servo/currents')
-    read = [f'servo/currents {len(received)} of {expected} blocks read' if expected is not None
-            else f'servo/currents {len(received)} blocks read']
-    if received:
-        last = received[-1][1]
-        read[0] += (f' ({received[0][1].t0_s:.3f}-'
-                    f'{last.t0_s + len(last) * last.sample_period_s:.3f} s)')
+    read = [f'servo/currents {count} of {expected} blocks read' if expected is not None
+            else f'servo/currents {count} blocks read']
+    if count:
+        if currents is not None:
+            start, end = float(currents.t0_s[0]), float(currents.t_end_s[-1])
+        else:
+            assert ragged is not None
+            start = ragged[0].t0_s
+            end = ragged[-1].t0_s + len(ragged[-1]) * ragged[-1].sample_period_s
+        read[0] += f' ({start:.3f}-{end:.3f} s)'
     problems = [*failed, *gaps]
     if recording.missing or problems:
         problems = [*read, *problems]
     warning = recording.check(partial, problems)
-    if not received:
+    if not count:
         raise BagError(f'{path}: no servo/currents blocks in the session')
-    custom = recording.custom_data
-    answers: dict[str, dict[int, Any]] = {topic: {} for topic in ANSWERS}
-    overrides: list[tuple[int, bool]] = []   # (stamp [ns], armed) of every FeedOverride
-    cuts: list[CutRecord] = []
-    for msg in decoded['pmc/cuts']:
-        cuts.append(CutRecord(
-            int(msg.index), str(msg.tool), float(msg.start_s), float(msg.end_s),
-            float(msg.programmed_feed_s), float(msg.max_force_n), float(msg.mean_force_n),
-            float(msg.min_override_pct), int(msg.overload_events), bool(msg.breakage),
-            float(msg.reachable_fraction), bool(msg.learned), bool(msg.complete)))
-    for topic in ANSWERS:
-        for msg in decoded[topic]:
-            answers[topic].setdefault(_ns(msg.header.stamp), msg)
-            if topic == 'pmc/feed_override':
-                overrides.append((_ns(msg.header.stamp), bool(msg.armed)))
-    blocks = [block for _, block in received]
-    stamps = np.array([stamp for stamp, _ in received], dtype=np.int64)
-    t_end = np.array([b.t0_s + len(b) * b.sample_period_s for b in blocks])
+    if currents is not None:
+        t_end = currents.t_end_s
+    else:
+        assert ragged is not None
+        t_end = np.array([b.t0_s + len(b) * b.sample_period_s for b in ragged])
+    estimate, command, override, truth = (tables.get(t) for t in ANSWERS)
+    answering = {id(t): _answers(t, stamps) for t in (estimate, command, override, truth)}
 
-    def column(topic: str, attribute: str) -> FloatArray:
-        found = answers[topic]
-        # A field a session's older message definition lacks reads as NaN.
-        return np.array([float(getattr(found[s], attribute, np.nan)) if s in found else np.nan
-                         for s in stamps.tolist()])
+    def column(table: Table | None, name: str) -> FloatArray:
+        return _answer_column(table, answering[id(table)], name)
 
     signals = {
-        'estimated_force_n': column('force/estimate', 'force_n'),
-        'estimated_force_rate_n_s': column('force/estimate', 'force_rate_n_s'),
-        'estimate_status': column('force/estimate', 'status'),
-        'requested_override_pct': column('control/feed_command', 'override_pct'),
-        'reference_n': column('control/feed_command', 'reference_force_n'),
-        'sliding_variable': column('control/feed_command', 'sliding_variable'),
-        'reference_reachable': column('control/feed_command', 'reference_reachable'),
-        'answered_override_pct': column('pmc/feed_override', 'applied_pct'),
-        'override_reason': column('pmc/feed_override', 'reason'),
+        'estimated_force_n': column(estimate, 'force_n'),
+        'estimated_force_rate_n_s': column(estimate, 'force_rate_n_s'),
+        'estimate_status': column(estimate, 'status'),
+        'requested_override_pct': column(command, 'override_pct'),
+        'reference_n': column(command, 'reference_force_n'),
+        'sliding_variable': column(command, 'sliding_variable'),
+        'reference_reachable': column(command, 'reference_reachable'),
+        'answered_override_pct': column(override, 'applied_pct'),
+        'override_reason': column(override, 'reason'),
         # What the decision saw and set (NaN in sessions recorded before these fields).
-        'program_enable': column('pmc/feed_override', 'program_enable'),
-        'threading': column('pmc/feed_override', 'threading'),
-        'operator_dial_pct': column('pmc/feed_override', 'operator_dial_pct'),
-        'engaged': column('pmc/feed_override', 'engaged'),
-        'alarm': column('pmc/feed_override', 'alarm'),
-        'stop_request': column('pmc/feed_override', 'stop_request'),
-        'force_n': column('sim/cutting_state', 'force_n'),
-        'depth_mm': column('sim/cutting_state', 'depth_of_cut_mm'),
-        'feed_mm_rev': column('sim/cutting_state', 'feed_mm_rev'),
-        'applied_override_pct': column('sim/cutting_state', 'override_pct'),
+        'program_enable': column(override, 'program_enable'),
+        'threading': column(override, 'threading'),
+        'operator_dial_pct': column(override, 'operator_dial_pct'),
+        'engaged': column(override, 'engaged'),
+        'alarm': column(override, 'alarm'),
+        'stop_request': column(override, 'stop_request'),
+        'force_n': column(truth, 'force_n'),
+        'depth_mm': column(truth, 'depth_of_cut_mm'),
+        'feed_mm_rev': column(truth, 'feed_mm_rev'),
+        'applied_override_pct': column(truth, 'override_pct'),
     }
-    overrides.sort(key=lambda pair: pair[0])
-    arm_changes = [(stamp * 1e-9, armed) for k, (stamp, armed) in enumerate(overrides)
-                   if k == 0 or armed != overrides[k - 1][1]]
-    return Session(path, custom, _experiment(path, custom), blocks, t_end, stamps, signals,
-                   has_truth=bool(answers['sim/cutting_state']), arm_changes=arm_changes,
-                   cuts=cuts,
-                   warning=warning,
-                   message_counts={t: len(recording.messages.get(t, []))
-                                   for t in recording.topics})
+    arm_changes: list[tuple[float, bool]] = []
+    if override is not None and override.count and 'armed' in override.columns:
+        carried = _stamps(override)
+        order = np.argsort(carried, kind='stable')
+        armed = override.columns['armed'][order].astype(bool)
+        changed = np.concatenate([[True], armed[1:] != armed[:-1]])
+        arm_changes = [(stamp * 1e-9, flag) for stamp, flag in zip(
+            carried[order][changed].tolist(), armed[changed].tolist(), strict=True)]
+    return Session(path, custom, _experiment(path, custom), currents, t_end, stamps, signals,
+                   has_truth=truth is not None and truth.count > 0, arm_changes=arm_changes,
+                   cuts=_cuts(tables.get('pmc/cuts')), warning=warning,
+                   message_counts={t: recording.counts.get(t, 0) for t in recording.topics},
+                   ragged=ragged)
 
 
 def _held(values: FloatArray, initial: float) -> FloatArray:
     """An override as the PMC holds it: the last value written, where a block had no answer."""
-    out = np.empty_like(values)
-    last = initial
-    for k, value in enumerate(values.tolist()):
-        last = value if np.isfinite(value) else last
-        out[k] = last
-    return out
+    written = np.where(np.isfinite(values), np.arange(values.size), -1)
+    np.maximum.accumulate(written, out=written)
+    held: FloatArray = np.where(written >= 0, values[np.maximum(written, 0)], initial)
+    return held
+
+
+def _block_lengths_s(session: Session) -> FloatArray:
+    """Each block's length in time [s] (samples times sample period)."""
+    c = session.currents
+    if c is not None:
+        return np.full(len(c), c.samples_per_block * c.sample_period_s)
+    return np.array([len(b) * b.sample_period_s for b in session.blocks])
 
 
 def _depth_change_times(session: Session, experiment: Experiment) -> list[float]:
@@ -549,11 +803,9 @@ def _depth_change_times(session: Session, experiment: Experiment) -> list[float]
     planned = experiment.plant.depth_profile.change_times_s()
     if not session.has_truth:
         return list(planned)
-    depth, starts = session.signals['depth_mm'], session.t_s - np.array(
-        [len(b) * b.sample_period_s for b in session.blocks])
+    depth, starts = session.signals['depth_mm'], session.t_s - _block_lengths_s(session)
     known = np.flatnonzero(np.isfinite(depth))
-    changed = [float(starts[b]) for a, b in itertools.pairwise(known)
-               if depth[a] != depth[b]]
+    changed: list[float] = starts[known[1:][depth[known[:-1]] != depth[known[1:]]]].tolist()
     block_s = float(np.median(session.t_s[1:] - session.t_s[:-1])) if len(starts) > 1 else 0.0
     if all(any(abs(c - p) <= block_s for p in planned) for c in changed):
         return list(planned)   # on the plant's time line: the planned times, exactly

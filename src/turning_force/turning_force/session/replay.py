@@ -20,9 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from turning_force.core.batch import CurrentArrays, InputArrays, replay_chain
+from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import NoCutError
 from turning_force.core.experiment import Experiment, parse_set
-from turning_force.core.loop import ControlChain
 from turning_force.session.bag import BagError
 from turning_force.session.reader import Session, estimate_metrics, recorded_reachable
 
@@ -58,34 +59,16 @@ def replay(session: Session, sets: Sequence[str] = (),
     if session.experiment is None:
         raise BagError(f'{session.path}: no recorded parameters to replay with')
     experiment = session.experiment.with_sets(sets)
-    chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
-                         reference_force_n=_recorded_reference(session, experiment, sets))
     # The recording says when the bridge was armed; a --set of the arming says otherwise.
     overridden = any(parse_set(text)[1] in ('armed', 'arm_bridge') for text in sets)
     changes = [] if overridden else list(session.arm_changes)
-    n = len(session.blocks)
-    force = np.full(n, np.nan)
-    requested = np.full(n, np.nan)
-    answered = np.full(n, np.nan)
-    reasons = np.full(n, -1, dtype=np.int64)
-    reachable = np.ones(n, dtype=bool)
-    for k, block in enumerate(session.blocks):
-        t_s = float(session.t_s[k])
-        while changes and changes[0][0] <= t_s:
-            t_change, armed = changes.pop(0)
-            if armed and not chain.gate.armed:
-                chain.gate.arm(t_change)
-            elif not armed and chain.gate.armed:
-                chain.gate.disarm()
-        step = chain.step(block, t_s, session.inputs(k))
-        force[k] = step.estimate.force_n
-        if step.command is not None:
-            requested[k] = step.command.override_pct
-            reachable[k] = step.command.reachable
-        answered[k] = step.decision.applied_pct
-        reasons[k] = int(step.decision.reason)
-        if progress is not None:
-            progress(k + 1, n)
+    trace = replay_chain(experiment, _currents(session), changes, _inputs(session),
+                         _recorded_reference(session, experiment, sets), progress=progress)
+    force = trace.estimated_force_n
+    requested = trace.requested_override_pct
+    answered = trace.applied_pct
+    reasons = trace.reason.astype(np.int64)
+    reachable = trace.reference_reachable
     s = session.signals
     recorded_force, recorded_answer = s['estimated_force_n'], s['answered_override_pct']
 
@@ -110,6 +93,24 @@ def replay(session: Session, sets: Sequence[str] = (),
         differing_reasons=int(np.count_nonzero(
             reasons[recorded] != s['override_reason'][recorded])),
     )
+
+
+def _currents(session: Session) -> CurrentArrays | list[CurrentBlock]:
+    """The session's currents as the reader holds them (arrays), or its blocks where they
+    differ in length or sample period (those replay in Python)."""
+    if session.currents is not None:
+        return session.currents
+    return list(session.blocks)
+
+
+def _inputs(session: Session) -> InputArrays:
+    """The machine's inputs each recorded decision saw (:meth:`Session.inputs`, as arrays)."""
+    s = session.signals
+    enable, threading, dial = s['program_enable'], s['threading'], s['operator_dial_pct']
+    given = ~(np.isnan(enable) | np.isnan(threading))
+    return InputArrays(given, np.where(given & (enable >= 0), enable, -1).astype(np.int8),
+                       np.where(given & (threading >= 0), threading, -1).astype(np.int8),
+                       np.where(given, dial, np.nan))
 
 
 def _recorded_reference(session: Session, experiment: Experiment,

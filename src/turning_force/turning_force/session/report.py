@@ -11,6 +11,7 @@ import base64
 import html
 import io
 import math
+import warnings
 from pathlib import Path
 
 import matplotlib
@@ -25,6 +26,8 @@ from matplotlib.transforms import Bbox
 from turning_force.core.metrics import METRIC_NAMES
 from turning_force.core.shopfloor import CutRecord
 from turning_force.session.reader import Session
+
+FloatArray = npt.NDArray[np.float64]
 
 __all__ = ['CUT_COLUMNS', 'cut_table', 'figure_png', 'write_html_report', 'write_report']
 
@@ -103,10 +106,67 @@ METRIC_LABELS = {
 }
 
 
-def _spans(mask: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
-    """(first, last) indices of each run of True in ``mask``."""
+# Columns of the time axis a signal is drawn in: about the plot's width in pixels (12 in at
+# 120 dpi, four fifths of it), twice over. A longer signal is drawn as its envelope.
+COLUMNS = 2000
+
+
+def _spans(mask: npt.NDArray[np.bool_], join: int = 0) -> list[tuple[int, int]]:
+    """(first, last) indices of each run of True in ``mask``; runs fewer than ``join`` apart
+    drawn as one (they would be one on the figure)."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+    spans = [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+    joined: list[tuple[int, int]] = []
+    for first, last in spans:
+        if joined and first - joined[-1][1] <= join:
+            joined[-1] = (joined[-1][0], last)
+        else:
+            joined.append((first, last))
+    return joined
+
+
+def _bins(n: int, columns: int = COLUMNS) -> int:
+    """Samples per column for ``n`` samples (1: drawn as they are)."""
+    return 1 if n <= 2 * columns else -(-n // columns)
+
+
+def _envelope(t: FloatArray, y: FloatArray, columns: int = COLUMNS
+              ) -> tuple[FloatArray, FloatArray]:
+    """``y`` over ``t`` as at most two points per column: the smallest and the largest of the
+    samples in it, in the order they came, so that a line through them spans every spike the
+    column holds (what a line through all of them would paint). NaN where a column has no
+    number."""
+    step = _bins(t.size, columns)
+    if step == 1:
+        return t, y
+    count = -(-t.size // step)
+    padded = np.full(count * step, np.nan)
+    padded[:t.size] = y
+    rows = padded.reshape(count, step)
+    finite = np.isfinite(rows)
+    low = np.where(finite, rows, np.inf).argmin(axis=1)
+    high = np.where(finite, rows, -np.inf).argmax(axis=1)
+    first, second = np.minimum(low, high), np.maximum(low, high)
+    index = np.arange(count) * step
+    at = np.stack([index + first, index + second], axis=1).reshape(-1)
+    at = np.minimum(at, t.size - 1)
+    values = np.where(np.repeat(finite.any(axis=1), 2), y[at], np.nan)
+    return t[at], values
+
+
+def _band(t: FloatArray, y: FloatArray, columns: int = COLUMNS
+          ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The start of each column, and the smallest and largest of ``y`` in it."""
+    step = _bins(t.size, columns)
+    if step == 1:
+        return t, y, y
+    count = -(-t.size // step)
+    padded = np.full(count * step, np.nan)
+    padded[:t.size] = y
+    rows = padded.reshape(count, step)
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)   # an all-NaN column: NaN
+        return t[::step], np.nanmin(rows, axis=1), np.nanmax(rows, axis=1)
 
 
 def write_report(session: Session, metrics: dict[str, float], out: Path) -> Path:
@@ -135,34 +195,37 @@ def figure_png(session: Session, metrics: dict[str, float]) -> bytes:
     ax_table = fig.add_subplot(grid[:, 1])
 
     if band > 0:
-        ax_force.fill_between(t, reference - band, reference + band, color='tab:green',
+        t_band, low, high = _band(t, reference)
+        ax_force.fill_between(t_band, low - band, high + band, color='tab:green',
                               alpha=0.15, step='post', label=f'allowed ±{band:g} N')
-    ax_force.step(t, reference, where='post', color='tab:green', lw=1.2, label='reference')
+    ax_force.step(*_envelope(t, reference), where='post', color='tab:green', lw=1.2,
+                  label='reference')
     if session.has_truth:
-        ax_force.plot(t, s['force_n'], color='tab:blue', lw=1.2, label='cutting force (true)')
-    ax_force.plot(t, s['estimated_force_n'], color='tab:orange', lw=0.8, alpha=0.8,
+        ax_force.plot(*_envelope(t, s['force_n']), color='tab:blue', lw=1.2,
+                      label='cutting force (true)')
+    ax_force.plot(*_envelope(t, s['estimated_force_n']), color='tab:orange', lw=0.8, alpha=0.8,
                   label='estimated from currents')
     out_of_reach = s['reference_reachable'] == 0.0   # NaN (no flag recorded): reachable
-    for first, last in _spans(out_of_reach):
+    for k, (first, last) in enumerate(_spans(out_of_reach, _bins(t.size) - 1)):
         ax_force.axvspan(t[first], t[last], color='tab:red', alpha=0.12, lw=0,
-                         label='reference out of reach' if first == _spans(out_of_reach)[0][0]
-                         else None)
+                         label='reference out of reach' if k == 0 else None)
     ax_force.set_ylabel('force [N]')
     ax_force.legend(loc='lower right', fontsize=8)
     ax_force.grid(alpha=0.3)
 
     if session.has_truth:
-        ax_depth.plot(t, s['depth_mm'], color='tab:brown')
-        ax_feed.plot(t, s['feed_mm_rev'], color='tab:purple')
+        ax_depth.plot(*_envelope(t, s['depth_mm']), color='tab:brown')
+        ax_feed.plot(*_envelope(t, s['feed_mm_rev']), color='tab:purple')
     ax_depth.set_ylabel('depth of cut [mm]')
     ax_feed.set_ylabel('feed [mm/rev]')
     for ax in (ax_depth, ax_feed):
         ax.grid(alpha=0.3)
 
-    ax_override.plot(t, s['requested_override_pct'], color='tab:gray', lw=0.7,
+    ax_override.plot(*_envelope(t, s['requested_override_pct']), color='tab:gray', lw=0.7,
                      label='requested (continuous)')
     applied = s['applied_override_pct'] if session.has_truth else s['answered_override_pct']
-    ax_override.step(t, applied, where='post', color='tab:red', lw=1.2, label='applied (PMC)')
+    ax_override.step(*_envelope(t, applied), where='post', color='tab:red', lw=1.2,
+                     label='applied (PMC)')
     ax_override.set_ylabel('override [%]')
     ax_override.set_xlabel('time [s]')
     ax_override.legend(loc='upper right', fontsize=8)

@@ -18,6 +18,10 @@ mcap's stream reader does, with the mcap library's record parsers, and
 
 Whether what was read is everything the session recorded is for the caller to judge against the
 session's ``metadata.yaml`` (:mod:`turning_force.session.reader`).
+
+With a ``sink``, messages are not kept: each intact chunk's messages go to the sink at once, as
+arrays (channel ids, log times, where each message's bytes lie in the chunk's records), so that
+a reader decodes an hour-long session chunk by chunk, never holding its bytes all at once.
 """
 
 from __future__ import annotations
@@ -27,10 +31,14 @@ import io
 import mmap
 import struct
 import zlib
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import lz4.frame
+import numpy as np
+import numpy.typing as npt
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
@@ -45,7 +53,7 @@ from mcap.records import (
     Schema,
 )
 
-__all__ = ['MAGIC', 'McapScan', 'scan_mcap']
+__all__ = ['MAGIC', 'McapScan', 'MessageSink', 'scan_mcap']
 
 MAGIC = b'\x89MCAP0\r\n'
 FOOTER_SIZE = 1 + 8 + 20 + len(MAGIC)   # opcode, length, summary start and offsets, crc; magic
@@ -55,9 +63,20 @@ ZSTD_CHUNK_TAG = b'\x04\x00\x00\x00zstd'
 ZSTD_CHUNK_TAG_OFFSET = 1 + 8 + 8 + 8 + 8 + 4
 # A message record: channel id, sequence, log time, publish time; then the data.
 MESSAGE_HEADER = struct.Struct('<HIQQ')
+RECORD_HEADER = struct.Struct('<BQ')
+# Chunks up to this size whose zstd frame states the size the record does are decompressed in
+# one call; others (a damaged size may say anything) a piece at a time, never past the size.
+ONE_SHOT_BYTES = 1 << 28
 # What a damaged record makes a parser raise: short or garbled fields, bad text, bad compression.
 RECORD_ERRORS = (McapError, ValueError, struct.error, EOFError, OverflowError, MemoryError,
                  zstandard.ZstdError, RuntimeError)
+
+
+IntArray = npt.NDArray[np.int64]
+# A chunk's messages: (the scan so far (its channels and schemas), the chunk's records' bytes,
+# channel id, log time [ns], offset of each message's data in those bytes, its size).
+MessageSink = Callable[['McapScan', npt.NDArray[np.uint8], IntArray, IntArray, IntArray,
+                        IntArray], None]
 
 
 class _Exact(ReadDataStream):
@@ -93,6 +112,20 @@ class McapScan:
     messages: list[Message] = field(default_factory=list)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     damage: list[str] = field(default_factory=list)
+    counts: dict[int, int] = field(default_factory=dict)   # messages read, by channel id
+
+
+def _prepared(body: bytes) -> bytes:
+    """A chunk record's body to its records, decompressed and checked."""
+    return _decompress(Chunk.read(_stream(body)))
+
+
+def _frame_size(data: bytes) -> int:
+    """The content size a zstd frame's header states (-1: none, or not a frame)."""
+    try:
+        return int(zstandard.frame_content_size(data))
+    except zstandard.ZstdError:
+        return -1
 
 
 def _decompress(chunk: Chunk) -> bytes:
@@ -100,6 +133,10 @@ def _decompress(chunk: Chunk) -> bytes:
     size = chunk.uncompressed_size
     if chunk.compression == '':
         data = chunk.data
+    elif (chunk.compression == 'zstd' and size <= ONE_SHOT_BYTES
+          and _frame_size(chunk.data) == size):
+        # The frame says what the record says: decompressed in one go, into one buffer.
+        data = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=size)
     elif chunk.compression == 'zstd':
         reader = zstandard.ZstdDecompressor().stream_reader(chunk.data, read_across_frames=False)
         pieces: list[bytes] = []
@@ -150,20 +187,113 @@ def _chunk_records(data: bytes) -> list[Schema | Channel | Message]:
     return out
 
 
+def _chunk_messages(data: bytes) -> tuple[list[Schema | Channel], IntArray, IntArray]:
+    """The schemas and channels inside a chunk, and where its message records start and how
+    long they are (other records are skipped); raises as :func:`_chunk_records`."""
+    out: list[Schema | Channel] = []
+    starts: list[int] = []
+    lengths: list[int] = []
+    unpack = RECORD_HEADER.unpack_from
+    pos, size = 0, len(data)
+    message, header = Opcode.MESSAGE, MESSAGE_HEADER.size
+    while pos < size:
+        if pos + 9 > size:
+            raise McapError(f'a record header at {pos} runs past the end of the chunk')
+        opcode, length = unpack(data, pos)
+        end = pos + 9 + length
+        if end > size:
+            raise McapError(f'a record at {pos} runs past the end of the chunk')
+        if opcode == message:
+            if length < header:
+                raise McapError(f'a message record at {pos} of {length} bytes')
+            starts.append(pos)
+            lengths.append(length)
+        elif opcode == Opcode.CHANNEL:
+            out.append(Channel.read(_stream(data[pos + 9:end])))
+        elif opcode == Opcode.SCHEMA:
+            out.append(Schema.read(_stream(data[pos + 9:end])))
+        elif opcode not in {Opcode.METADATA, Opcode.ATTACHMENT}:
+            raise McapError(f'record with opcode {opcode:#04x} at {pos} inside a chunk')
+        pos = end
+    return out, np.array(starts, dtype=np.int64), np.array(lengths, dtype=np.int64)
+
+
+def _indexed_messages(data: bytes, offsets: IntArray
+                      ) -> tuple[list[Schema | Channel], IntArray, IntArray] | None:
+    """:func:`_chunk_messages` from the chunk's message indexes (where each message record
+    starts): each must be a message record, and the bytes between them whole records of other
+    kinds (walked). None where they do not hold (the caller walks the chunk instead)."""
+    raw = np.frombuffer(data, dtype=np.uint8)
+    size = raw.size
+    starts = np.sort(offsets)
+    if starts.size > 1 and np.any(starts[1:] == starts[:-1]):
+        starts = np.unique(starts)
+    if not starts.size or starts[0] < 0 or starts[-1] + 9 > size:
+        return None
+    if np.any(raw[starts] != Opcode.MESSAGE):
+        return None
+    lengths = _little(raw, starts + 1, 8)
+    ends = starts + 9 + lengths
+    if np.any(lengths < MESSAGE_HEADER.size) or np.any(ends > size):
+        return None
+    gap_starts = np.concatenate([[0], ends])
+    gap_ends = np.concatenate([starts, [size]])
+    if np.any(gap_starts > gap_ends):
+        return None
+    records: list[Schema | Channel] = []
+    for k in np.flatnonzero(gap_starts < gap_ends).tolist():
+        try:
+            found, messages, _ = _chunk_messages(data[int(gap_starts[k]):int(gap_ends[k])])
+        except RECORD_ERRORS:
+            return None
+        if messages.size:   # messages the index does not list
+            return None
+        records += found
+    return records, starts, lengths
+
+
+def _little(raw: npt.NDArray[np.uint8], at: IntArray, width: int) -> IntArray:
+    """The unsigned little-endian integers of ``width`` bytes at ``at`` (read through a view
+    of the bytes at each of the ``width`` alignments, not byte by byte)."""
+    value: IntArray = np.empty(at.size, dtype=np.int64)
+    residue = at % width
+    for r in np.flatnonzero(np.bincount(residue, minlength=width)).tolist():
+        picked = residue == r
+        view = np.frombuffer(raw, dtype=f'<u{width}', offset=r,
+                             count=(raw.size - r) // width)
+        value[picked] = view[(at[picked] - r) // width]
+    return value
+
+
 class _Scanner:
-    def __init__(self, path: Path, data: bytes | mmap.mmap) -> None:
+    def __init__(self, path: Path, data: bytes | mmap.mmap,
+                 sink: MessageSink | None = None) -> None:
         self.data = data
+        self.sink = sink
         self.out = McapScan(path, len(data))
         self.known_chunks: set[int] = set()   # offsets of chunk records found or indexed
         # The summary's copies of schemas and channels: the data's own (in a chunk, under its
         # CRC) come first; these only stand in for what a lost chunk took with it.
         self.summary_records: list[tuple[Schema | Channel, int]] = []
         self.read_chunks: set[int] = set()
+        # Streaming: the next chunk decompressed on a thread while this one is decoded.
+        self._pool = ThreadPoolExecutor(1) if sink is not None else None
+        self._ahead: tuple[int, Future[bytes]] | None = None
+        self._chunk_list: list[int] = []
+        self._data_end = len(data)
 
     def add(self, record: Schema | Channel | Message, where: str) -> None:
         out = self.out
         if isinstance(record, Message):
-            out.messages.append(record)
+            out.counts[record.channel_id] = out.counts.get(record.channel_id, 0) + 1
+            if self.sink is None:
+                out.messages.append(record)
+            else:
+                one = np.array([record.channel_id], dtype=np.int64)
+                self.sink(out, np.frombuffer(record.data, dtype=np.uint8), one,
+                          np.array([record.log_time], dtype=np.int64),
+                          np.zeros(1, dtype=np.int64),
+                          np.array([len(record.data)], dtype=np.int64))
             return
         table: dict[int, Schema] | dict[int, Channel] = (
             out.schemas if isinstance(record, Schema) else out.channels)
@@ -235,13 +365,28 @@ class _Scanner:
         return start
 
     def find_chunks(self, end: int) -> None:
-        """Offsets of our zstd chunk records, by their start pattern."""
-        at = self.data.find(ZSTD_CHUNK_TAG, ZSTD_CHUNK_TAG_OFFSET)
-        while 0 <= at < end:
-            start = at - ZSTD_CHUNK_TAG_OFFSET
-            if self.data[start] == Opcode.CHUNK:
-                self.known_chunks.add(start)
-            at = self.data.find(ZSTD_CHUNK_TAG, at + 1)
+        """Offsets of our zstd chunk records, by their start pattern (looked for a window at a
+        time, each let go of after: the file is not held in memory)."""
+        window = 1 << 24
+        for low in range(0, end, window):
+            high = min(low + window + len(ZSTD_CHUNK_TAG) - 1, end)
+            at = self.data.find(ZSTD_CHUNK_TAG, max(low, ZSTD_CHUNK_TAG_OFFSET), high)
+            while at >= 0:
+                start = at - ZSTD_CHUNK_TAG_OFFSET
+                if self.data[start] == Opcode.CHUNK:
+                    self.known_chunks.add(start)
+                at = self.data.find(ZSTD_CHUNK_TAG, at + 1, high)
+            self.release(low, min(low + window, end))
+
+    def release(self, start: int, end: int) -> None:
+        """Let the pages of a mapped file from ``start`` to ``end`` go (read once: a session
+        of hours is not kept resident)."""
+        if self.sink is None or not isinstance(self.data, mmap.mmap):
+            return
+        first = -(-start // mmap.PAGESIZE) * mmap.PAGESIZE
+        last = end // mmap.PAGESIZE * mmap.PAGESIZE
+        if last > first and hasattr(mmap, 'MADV_DONTNEED'):
+            self.data.madvise(mmap.MADV_DONTNEED, first, last - first)
 
     def chunk_by_its_fields(self, pos: int, limit: int) -> tuple[int, bytes] | None:
         """A known chunk whose record length is damaged: its extent from its own fields (the
@@ -258,8 +403,42 @@ class _Scanner:
         self.out.damage.append(f'chunk at byte {pos}: its record length is damaged')
         return Opcode.CHUNK, bytes(self.data[pos + 9:pos + 9 + length])
 
-    def chunk(self, pos: int, body: bytes) -> None:
+    def prefetch_after(self, pos: int) -> None:
+        """Start decompressing the chunk after the one at ``pos``, if it is whole."""
+        if self._pool is None:
+            return
+        later = bisect.bisect_right(self._chunk_list, pos)
+        if later >= len(self._chunk_list):
+            return
+        start = self._chunk_list[later]
+        limit = (self._chunk_list[later + 1] if later + 1 < len(self._chunk_list)
+                 else self._data_end)
+        found = self.record_at(start, limit)
+        if found is not None and found[0] == Opcode.CHUNK:
+            self._ahead = (start, self._pool.submit(_prepared, found[1]))
+
+    def message_index(self, pos: int, limit: int) -> IntArray | None:
+        """Where a chunk's messages start, from the message index records after it (at
+        ``pos``); None where there are none or they are unreadable."""
+        found: list[IntArray] = []
+        while True:
+            record = self.record_at(pos, limit)
+            if record is None or record[0] != Opcode.MESSAGE_INDEX:
+                break
+            body = record[1]
+            if len(body) < 6 or 6 + int.from_bytes(body[2:6], 'little') != len(body) \
+                    or (len(body) - 6) % 16:
+                return None
+            found.append(np.frombuffer(body, dtype='<u8', offset=6)[1::2].astype(np.int64))
+            pos += 9 + len(body)
+        return np.concatenate(found) if found else None
+
+    def chunk(self, pos: int, body: bytes, index: IntArray | None = None) -> None:
         self.read_chunks.add(pos)
+        if self.sink is not None:
+            self.streamed_chunk(pos, body, index)
+            self.release(pos, pos + 9 + len(body))
+            return
         try:
             chunk = Chunk.read(_stream(body))
             records = _chunk_records(_decompress(chunk))
@@ -269,10 +448,40 @@ class _Scanner:
         for record in records:
             self.add(record, f'chunk at byte {pos}')
 
+    def streamed_chunk(self, pos: int, body: bytes, index: IntArray | None) -> None:
+        """A chunk whose messages go to the sink as arrays (found from its message index where
+        it has one, else by walking its records). The next chunk is decompressed on a thread
+        meanwhile (what it gives, or what it raises, is taken when its turn comes: the scan's
+        order of work is the same)."""
+        assert self.sink is not None
+        ahead, self._ahead = self._ahead, None
+        self.prefetch_after(pos)
+        try:
+            data = (ahead[1].result() if ahead is not None and ahead[0] == pos
+                    else _prepared(body))
+            indexed = _indexed_messages(data, index) if index is not None else None
+            records, starts, lengths = indexed if indexed is not None else \
+                _chunk_messages(data)
+        except RECORD_ERRORS as exc:
+            self.out.damage.append(f'chunk at byte {pos} ({9 + len(body)} bytes): {exc}')
+            return
+        for record in records:
+            self.add(record, f'chunk at byte {pos}')
+        if not starts.size:
+            return
+        raw = np.frombuffer(data, dtype=np.uint8)
+        channels = _little(raw, starts + 9, 2)
+        counts = np.bincount(channels)
+        for channel in np.flatnonzero(counts).tolist():
+            self.out.counts[channel] = self.out.counts.get(channel, 0) + int(counts[channel])
+        self.sink(self.out, raw, channels, _little(raw, starts + 9 + 6, 8),
+                  starts + 9 + MESSAGE_HEADER.size, lengths - MESSAGE_HEADER.size)
+
     def data_section(self, pos: int, end: int) -> int:
         """Read records from ``pos`` until the data section ends or a record is unreadable;
         return where it stopped."""
         chunks = sorted(self.known_chunks)
+        self._chunk_list, self._data_end = chunks, end
         while pos < end:
             later = bisect.bisect_right(chunks, pos)
             limit = chunks[later] if later < len(chunks) else end   # no record spans a chunk
@@ -289,7 +498,9 @@ class _Scanner:
             if pos in self.known_chunks or opcode == Opcode.CHUNK:
                 if opcode != Opcode.CHUNK:
                     self.out.damage.append(f'byte {pos}: a chunk whose opcode was changed')
-                self.chunk(pos, body)
+                index = (self.message_index(pos + 9 + len(body), limit)
+                         if self.sink is not None else None)
+                self.chunk(pos, body, index)
             elif opcode in (Opcode.MESSAGE, Opcode.SCHEMA, Opcode.CHANNEL):
                 try:
                     record: Schema | Channel | Message = (
@@ -341,15 +552,16 @@ class _Scanner:
         for record, pos in self.summary_records:
             self.add(record, f'summary at byte {pos}')
         described = set(self.out.channels)
-        for index in sorted({m.channel_id for m in self.out.messages} - described):
-            lost = sum(1 for m in self.out.messages if m.channel_id == index)
+        for index in sorted(set(self.out.counts) - described):
+            lost = self.out.counts[index]
             self.out.damage.append(f'{lost} messages on channel {index}, which the file does '
                                    'not describe')
         return self.out
 
 
-def scan_mcap(path: Path) -> McapScan:
-    """Every record of the MCAP file at ``path`` that can be read, and what cannot.
+def scan_mcap(path: Path, sink: MessageSink | None = None) -> McapScan:
+    """Every record of the MCAP file at ``path`` that can be read, and what cannot; with a
+    ``sink``, the messages go to it (chunk by chunk, as arrays) instead of into the scan.
 
     Raises ``OSError`` if the file cannot be opened.
     """
@@ -359,4 +571,9 @@ def scan_mcap(path: Path) -> McapScan:
             out.damage.append('the file is empty')
             return out
         with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:
-            return _Scanner(path, data).run()
+            scanner = _Scanner(path, data, sink)
+            try:
+                return scanner.run()
+            finally:
+                if scanner._pool is not None:
+                    scanner._pool.shutdown(wait=True, cancel_futures=True)

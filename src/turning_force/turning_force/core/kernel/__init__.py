@@ -2,7 +2,9 @@
 (:mod:`.jit`), bit for bit the plain Python reference's numbers, about a thousand times faster.
 
 The core loop (:func:`turning_force.core.simulate.simulate`) runs whole stretches of blocks in
-it; replay and the nodes run the estimator and the controller on it one block at a time
+it, and so do replay and the core loop that keeps what a session records
+(:mod:`turning_force.core.batch`: ``jit.replay_blocks``, ``jit.run_core_kept``); the nodes run
+the estimator and the controller on it one block at a time
 (:class:`turning_force.core.loop.ControlChain`, :mod:`.components`). The Python classes stay the
 reference; ``test/core/test_kernel.py`` holds the two to every trace and metric of every
 experiment file, the robustness matrix and the fault cases.

@@ -23,7 +23,7 @@ from turning_force.core.estimation import (
 from turning_force.core.kernel import jit as K
 from turning_force.core.kernel import pack
 
-__all__ = ['CompiledController', 'CompiledEstimator']
+__all__ = ['CompiledController', 'CompiledEstimator', 'detail_text']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -89,36 +89,43 @@ class CompiledEstimator:
     def _detail(self, block: CurrentBlock) -> str:
         """The reference's one line for the kernel's detail code."""
         s = self._state
-        code, a, b = int(s[K.ES_DCODE]), float(s[K.ES_DVAL]), float(s[K.ES_DVAL + 1])
-        if code == K.D_NONE:
-            return ''
-        if code == K.D_LENGTHS:
-            arrays = (block.phase_u_a, block.phase_v_a, block.rotor_angle_rad,
-                      block.feed_rate_mm_min)
-            return f'array lengths {[x.size for x in arrays]} differ or are empty'
-        if code == K.D_DT_BAD:
-            return f'sample period {block.sample_period_s!r} s is not a positive number'
-        if code == K.D_DT_CHANGED:
-            return f'sample period changed from {a!r} s to {block.sample_period_s!r} s'
-        if code == K.D_NONFINITE:
-            return f'{int(a)} non-finite samples'
-        if code == K.D_STAMP_NONFINITE:
-            return f'stamp {block.t0_s!r} s is not finite'
-        if code == K.D_STAMP_NOT_AFTER:
-            return f'stamp {block.t0_s!r} s is not after the previous {b!r} s'
-        if code == K.D_STAMP_JUMP:
-            return (f'stamp {block.t0_s!r} s jumps {b:.6g} s past the previous block '
-                    f'(max_stamp_jump_s {self.settings.max_stamp_jump_s:g})')
-        if code == K.D_IMPLAUSIBLE:
-            return (f'phase current {a:.3g} A is beyond {IMPLAUSIBLE_RANGE_FACTOR:g} x the '
-                    f'sensor range ({self.settings.current_range_a:g} A): not a reading')
-        if code == K.D_OVERFLOW:
-            return f'currents overflow the force computation (|i| up to {a:.3g} A)'
-        if code == K.D_FILTER_OVERFLOW:
-            return f'force filter overflowed (|i| up to {a:.3g} A)'
-        if code == K.D_SATURATED:
-            return f'phase current {a:.3g} A beyond the sensor range'
-        return f'friction re-zeroed in air: {a:.3f} x calibrated'
+        return detail_text(self.settings, block, int(s[K.ES_DCODE]), float(s[K.ES_DVAL]),
+                           float(s[K.ES_DVAL + 1]))
+
+
+def detail_text(settings: EstimatorSettings, block: CurrentBlock, code: int, a: float,
+                b: float) -> str:
+    """The reference estimator's one line (ForceEstimate.detail) for the kernel's detail code
+    and values on ``block``."""
+    if code == K.D_NONE:
+        return ''
+    if code == K.D_LENGTHS:
+        arrays = (block.phase_u_a, block.phase_v_a, block.rotor_angle_rad,
+                  block.feed_rate_mm_min)
+        return f'array lengths {[x.size for x in arrays]} differ or are empty'
+    if code == K.D_DT_BAD:
+        return f'sample period {block.sample_period_s!r} s is not a positive number'
+    if code == K.D_DT_CHANGED:
+        return f'sample period changed from {a!r} s to {block.sample_period_s!r} s'
+    if code == K.D_NONFINITE:
+        return f'{int(a)} non-finite samples'
+    if code == K.D_STAMP_NONFINITE:
+        return f'stamp {block.t0_s!r} s is not finite'
+    if code == K.D_STAMP_NOT_AFTER:
+        return f'stamp {block.t0_s!r} s is not after the previous {b!r} s'
+    if code == K.D_STAMP_JUMP:
+        return (f'stamp {block.t0_s!r} s jumps {b:.6g} s past the previous block '
+                f'(max_stamp_jump_s {settings.max_stamp_jump_s:g})')
+    if code == K.D_IMPLAUSIBLE:
+        return (f'phase current {a:.3g} A is beyond {IMPLAUSIBLE_RANGE_FACTOR:g} x the '
+                f'sensor range ({settings.current_range_a:g} A): not a reading')
+    if code == K.D_OVERFLOW:
+        return f'currents overflow the force computation (|i| up to {a:.3g} A)'
+    if code == K.D_FILTER_OVERFLOW:
+        return f'force filter overflowed (|i| up to {a:.3g} A)'
+    if code == K.D_SATURATED:
+        return f'phase current {a:.3g} A beyond the sensor range'
+    return f'friction re-zeroed in air: {a:.3f} x calibrated'
 
 
 class CompiledController:

@@ -98,12 +98,22 @@ OUT_PCT, OUT_ERR, OUT_S, OUT_REACH = range(4)
 
 # --- gate -----------------------------------------------------------------------------------
 G_WATCHDOG, G_SAFE, G_OVERLOAD, G_ARMED, G_CONT = range(5)
-G_SIZE = 5
+# the shop floor's cut detector and overload reaction (outputs only: no hold, core/shopfloor.py)
+G_ENGAGE, G_EXIT, G_DEBOUNCE, G_REACT_LIMIT, G_REACT_NEEDED, G_REACTION = range(5, 11)
+G_SIZE = 11
+REACTION_NONE, REACTION_ALARM, REACTION_STOP = 0, 1, 2
 GS_ARMED, GS_STARTED, GS_REQ, GS_CMD_T, GS_ARMED_T, GS_HOLD, GS_LAST_F, GS_LAST_STATUS = range(8)
-GS_SIZE = 8
+GS_ENGAGED, GS_RUN, GS_ABOVE, GS_REACTED = range(8, 12)
+GS_SIZE = 12
 
 # --- trace columns (core/simulate.py TRACE_NAMES) -------------------------------------------
 TRACE_COLUMNS = 11
+# --- chain rows (core/batch.py ChainTrace): the estimate, the command (CH_ACTED 0: silent),
+# the decision and the gate's outputs, one row per block
+CH_FORCE, CH_RATE, CH_IQ, CH_IFR, CH_STATUS, CH_ACTED, CH_REQ, CH_S, CH_REACH = range(9)
+CH_REF, CH_APPLIED, CH_REASON, CH_ARMED, CH_GATE_REQ, CH_ENGAGED, CH_ALARM = range(9, 16)
+CH_STOP, CH_ERR, CH_DCODE, CH_DVAL = 16, 17, 18, 19   # the estimate's detail: code, 2 values
+CHAIN_COLUMNS = 21
 
 
 # --- Python's and numpy's scalar rules ------------------------------------------------------
@@ -987,14 +997,58 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
 # --- the gate (core/pmc.py OverrideGate) ----------------------------------------------------
 
 @njit(**_OPTIONS)
+def _over_limit(gp: np.ndarray, force: float, status: float) -> bool:
+    """OverrideGate._over_limit, as a flag."""
+    return status == SATURATED or not math.isfinite(force) or force > gp[G_OVERLOAD]
+
+
+@njit(**_OPTIONS)
+def _observe(gp: np.ndarray, gs: np.ndarray, force: float) -> None:
+    """ShopFloor.observe where it sets outputs only (kernel.NEUTRAL: no breakage, no learning,
+    no stand-down): the cut detector (ShopFloor._engagement) and the overload reaction."""
+    debounce = gp[G_DEBOUNCE]
+    if gs[GS_ENGAGED] == 0.0:
+        gs[GS_RUN] = gs[GS_RUN] + 1.0 if force > gp[G_ENGAGE] else 0.0
+        if gs[GS_RUN] >= debounce:
+            gs[GS_ENGAGED], gs[GS_RUN] = 1.0, 0.0
+    else:
+        gs[GS_RUN] = gs[GS_RUN] + 1.0 if force < gp[G_EXIT] else 0.0
+        if gs[GS_RUN] >= debounce:
+            gs[GS_ENGAGED], gs[GS_RUN] = 0.0, 0.0
+    acting = gs[GS_ARMED] != 0.0
+    gs[GS_ABOVE] = gs[GS_ABOVE] + 1.0 if force > gp[G_REACT_LIMIT] and acting else 0.0
+    if gp[G_REACTION] != REACTION_NONE and gs[GS_REACTED] == 0.0 \
+            and gs[GS_ABOVE] >= gp[G_REACT_NEEDED]:
+        gs[GS_REACTED] = 1.0
+
+
+@njit(**_OPTIONS)
 def gate_on_estimate(gp: np.ndarray, gs: np.ndarray, force: float, status: int) -> None:
-    """OverrideGate.on_estimate."""
+    """OverrideGate.on_estimate, where only the override counts (the core loop's trace): the
+    shop floor's outputs are not kept up (:func:`gate_observe`)."""
     if status == INVALID_INPUT or status == STALE:   # noqa: SIM109 -- numba: no tuple ``in``
         return
     gs[GS_LAST_F], gs[GS_LAST_STATUS] = force, status
-    over = status == SATURATED or not math.isfinite(force) or force > gp[G_OVERLOAD]
-    if over and gs[GS_HOLD] == 0.0:
+    if _over_limit(gp, force, status) and gs[GS_HOLD] == 0.0:
         gs[GS_HOLD] = 1.0
+
+
+@njit(**_OPTIONS)
+def gate_observe(gp: np.ndarray, gs: np.ndarray, force: float, status: int) -> None:
+    """OverrideGate.on_estimate whole: the override's state and the shop floor's outputs (the
+    cut detector, the overload reaction)."""
+    gate_on_estimate(gp, gs, force, status)
+    if status != INVALID_INPUT and status != STALE and math.isfinite(force):
+        _observe(gp, gs, force)
+
+
+@njit(**_OPTIONS)
+def gate_arm(gp: np.ndarray, gs: np.ndarray, t: float) -> None:
+    """OverrideGate.arm: the reactions cleared (ShopFloor.rearm); the hold stays while the last
+    force is over the limit, else clears."""
+    gs[GS_ARMED], gs[GS_ARMED_T] = 1.0, t
+    gs[GS_REACTED], gs[GS_ABOVE] = 0.0, 0.0
+    gs[GS_HOLD] = 1.0 if _over_limit(gp, gs[GS_LAST_F], gs[GS_LAST_STATUS]) else 0.0
 
 
 @njit(**_OPTIONS)
@@ -1062,6 +1116,106 @@ def run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, ep, es, cp, cs, c
         trace[row, 9], trace[row, 10] = last[1], last[2]
         applied = decision[0]
     return applied
+
+
+@njit(**_OPTIONS)
+def _chain_row(rows: np.ndarray, k: int, es: np.ndarray, status: int, acted: bool,
+               out: np.ndarray, cp: np.ndarray, gp: np.ndarray, gs: np.ndarray,
+               decision: np.ndarray) -> None:
+    """Row k of the chain's rows (CH_*): the estimate, the command (where ``acted``), the
+    decision and the gate's outputs."""
+    rows[k, CH_FORCE], rows[k, CH_RATE] = es[ES_F], es[ES_R]
+    rows[k, CH_IQ], rows[k, CH_IFR], rows[k, CH_STATUS] = es[ES_IQ], es[ES_IFR], status
+    rows[k, CH_ACTED] = 1.0 if acted else 0.0
+    rows[k, CH_REQ], rows[k, CH_S], rows[k, CH_REACH] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
+    rows[k, CH_ERR] = out[OUT_ERR]
+    rows[k, CH_DCODE], rows[k, CH_DVAL], rows[k, CH_DVAL + 1] = (es[ES_DCODE], es[ES_DVAL],
+                                                                 es[ES_DVAL + 1])
+    rows[k, CH_REF] = cp[C_REF]
+    rows[k, CH_APPLIED], rows[k, CH_REASON] = decision[0], decision[1]
+    rows[k, CH_ARMED], rows[k, CH_GATE_REQ] = gs[GS_ARMED], gs[GS_REQ]
+    rows[k, CH_ENGAGED] = gs[GS_ENGAGED]
+    rows[k, CH_ALARM] = 1.0 if gs[GS_REACTED] != 0.0 or gs[GS_HOLD] != 0.0 else 0.0
+    rows[k, CH_STOP] = 1.0 if gs[GS_REACTED] != 0.0 and gp[G_REACTION] == REACTION_STOP \
+        else 0.0
+
+
+@njit('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
+      'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
+      'float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, float64, '
+      'float64[::1], float64[:, ::1], float64[::1], float64[:, ::1], float64[:, ::1], '
+      'float64[:, ::1], float64[:, ::1], float64[:, ::1])', **_OPTIONS)
+def run_core_kept(pp, ps, times, depths, noise_u, noise_v, noise_f, ep, es, cp, cs, clevels,
+                  gp, gs, glevels, k0, k1, applied, last, trace, t0s, u, v, angle, feed_rate,
+                  rows):
+    """:func:`run_core`, keeping every block: its first stamp into t0s[k], its samples into
+    row k of u, v, angle and feed_rate, the chain's row (CH_*) into rows[k]."""
+    n = int(pp[P_N])
+    dt = pp[P_DT]
+    work = np.empty(2 * n)
+    truth = np.empty(3)
+    out = np.full(4, math.nan)
+    decision = np.empty(2)
+    for k in range(k0, k1):
+        lo = (k - k0) * n
+        uk, vk, ak, fk = u[k], v[k], angle[k], feed_rate[k]
+        t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, lo,
+                        uk, vk, ak, fk, truth)
+        t0s[k] = t0
+        t_end = t0 + n * dt
+        status = estimator_update(ep, es, t0, dt, uk, vk, ak, fk, work)
+        force, rate = es[ES_F], es[ES_R]
+        gate_observe(gp, gs, force, status)
+        acted = (status == OK or status == SATURATED) and math.isfinite(force)  # noqa: SIM109
+        if acted:
+            controller_update(cp, cs, clevels, force, rate, out)
+            last[0], last[1], last[2] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
+            gs[GS_REQ], gs[GS_CMD_T] = out[OUT_PCT], t_end
+        gate_decide(gp, gs, glevels, t_end, decision)
+        _chain_row(rows, k, es, status, acted, out, cp, gp, gs, decision)
+        trace[k, 0], trace[k, 1], trace[k, 2] = t_end, truth[0], force
+        trace[k, 3], trace[k, 4], trace[k, 5] = rate, cp[C_REF], truth[1]
+        trace[k, 6], trace[k, 7], trace[k, 8] = truth[2], last[0], applied
+        trace[k, 9], trace[k, 10] = last[1], last[2]
+        applied = decision[0]
+    return applied
+
+
+@njit('int64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
+      'float64[::1], float64[::1], float64[::1], float64[::1], float64, float64[:, ::1], '
+      'float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], int64, '
+      'float64[:, ::1])', **_OPTIONS)
+def replay_blocks(ep, es, cp, cs, clevels, gp, gs, glevels, t0s, dt, u, v, angle, feed,
+                  arm_times, arm_states, change, rows):
+    """Replay (session/replay.py): blocks of recorded currents (n, m) through estimator ->
+    gate.on_estimate -> controller -> gate.on_command -> gate.decide, open loop, each decision
+    at the block's end; before each block, the gate armed (at the change's time) or disarmed
+    for every change (arm_times, arm_states 1/0, in order, from index ``change`` on) up to the
+    block's end. The chain's rows (CH_*) into rows; returns the index of the first change not
+    made (where the next stretch of blocks goes on)."""
+    n, m = u.shape
+    work = np.empty(2 * m)
+    out = np.full(4, math.nan)
+    decision = np.empty(2)
+    for k in range(n):
+        t0 = t0s[k]
+        t_end = t0 + m * dt
+        while change < arm_times.size and arm_times[change] <= t_end:
+            if arm_states[change] != 0.0 and gs[GS_ARMED] == 0.0:
+                gate_arm(gp, gs, arm_times[change])
+            elif arm_states[change] == 0.0 and gs[GS_ARMED] != 0.0:
+                gs[GS_ARMED] = 0.0
+            change += 1
+        status = estimator_update(ep, es, t0, dt, u[k], v[k], angle[k], feed[k], work)
+        force, rate = es[ES_F], es[ES_R]
+        gate_observe(gp, gs, force, status)
+        acted = (status == OK or status == SATURATED) and math.isfinite(force)  # noqa: SIM109
+        if acted:
+            controller_update(cp, cs, clevels, force, rate, out)
+            gs[GS_REQ], gs[GS_CMD_T] = out[OUT_PCT], t_end
+        gate_decide(gp, gs, glevels, t_end, decision)
+        _chain_row(rows, k, es, status, acted, out, cp, gp, gs, decision)
+    return change
 
 
 @njit('int64(float64[::1], float64[::1], float64, float64, float64[::1], float64[::1], '

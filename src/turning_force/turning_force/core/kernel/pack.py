@@ -28,12 +28,13 @@ from turning_force.core.estimation import (
     _Lowpass,
 )
 from turning_force.core.kernel import jit as K
+from turning_force.core.loop import ControlChain
 from turning_force.core.overrides import OverrideTable
 from turning_force.core.plant import LathePlant
 from turning_force.core.pmc import OverrideGate
 
-__all__ = ['controller_params', 'controller_state', 'estimator_params', 'estimator_state',
-           'gate_arrays', 'levels', 'plant_arrays', 'set_filter']
+__all__ = ['chain_arrays', 'controller_params', 'controller_state', 'estimator_params',
+           'estimator_state', 'gate_arrays', 'levels', 'plant_arrays', 'set_filter']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -256,6 +257,9 @@ def controller_state(controller: Controller) -> FloatArray:
 
 # --- gate -----------------------------------------------------------------------------------
 
+_REACTIONS = {'alarm': K.REACTION_ALARM, 'stop': K.REACTION_STOP}   # 'hold' runs in Python
+
+
 def gate_arrays(gate: OverrideGate) -> tuple[FloatArray, FloatArray, FloatArray]:
     """(params, state, levels) of the gate now."""
     s = gate.settings
@@ -263,9 +267,31 @@ def gate_arrays(gate: OverrideGate) -> tuple[FloatArray, FloatArray, FloatArray]
     p[K.G_WATCHDOG], p[K.G_SAFE] = s.watchdog_period_s, s.safe_override_pct
     p[K.G_OVERLOAD], p[K.G_ARMED] = s.overload_force_n, s.armed
     p[K.G_CONT] = gate.table.continuous
+    shop = gate.shop
+    p[K.G_ENGAGE], p[K.G_EXIT] = s.engage_force_n, s.exit_force_n
+    p[K.G_DEBOUNCE], p[K.G_REACT_LIMIT] = shop._debounce, shop.reaction_limit_n
+    p[K.G_REACT_NEEDED] = math.ceil(s.reaction_delay_s / shop.period_s - 1e-9)
+    p[K.G_REACTION] = _REACTIONS.get(s.overload_reaction, K.REACTION_NONE)
     state = np.zeros(K.GS_SIZE)
     state[K.GS_ARMED], state[K.GS_STARTED] = gate.armed, gate.started
     state[K.GS_REQ], state[K.GS_CMD_T] = gate._requested, gate._command_t_s
     state[K.GS_ARMED_T], state[K.GS_HOLD] = gate._armed_t_s, bool(gate._overload)
     state[K.GS_LAST_F], state[K.GS_LAST_STATUS] = gate._last_force_n, int(gate._last_status)
+    state[K.GS_ENGAGED], state[K.GS_RUN] = shop.engaged, shop._run
+    state[K.GS_ABOVE], state[K.GS_REACTED] = shop._above, bool(shop._reaction)
     return p, state, levels(gate.table)
+
+
+def chain_arrays(chain: ControlChain, dt_s: float) -> tuple[FloatArray, ...]:
+    """(estimator params, state, controller params, state, levels, gate params, state, levels)
+    of a chain of Python objects now, the estimator's filter set up for blocks sampled at
+    ``dt_s`` (where that is a sample period)."""
+    settings = chain.estimator.settings
+    ep = estimator_params(settings)
+    es = estimator_state(chain.estimator, ep)
+    if es[K.ES_ACTIVE] == 0.0 and math.isfinite(dt_s) and dt_s > 0:
+        set_filter(ep, settings, dt_s)
+    controller = chain.controller
+    gp, gs, glevels = gate_arrays(chain.gate)
+    return (ep, es, controller_params(controller), controller_state(controller),
+            levels(controller._table), gp, gs, glevels)

@@ -1,0 +1,276 @@
+"""``turning-force run --core --out BAG``: the core loop's run recorded as the graph records it.
+
+:func:`turning_force.core.batch.run_core` keeps every block of a closed-loop run (the DAQ's
+samples, the chain's estimate, command and decision, the plant's state); this writes them as the
+lock-step graph's session (:func:`turning_force.session.run.run_lockstep` with
+``session_recorder``) holds them: the same topics and message types, each message with the
+stamps and fields the node that publishes it gives it (``lathe_sim``: ``machine/inputs``,
+``servo/currents``, ``servo/joint_state``, ``sim/cutting_state``; ``force_estimator``,
+``force_controller``, ``pmc_bridge``: ``force/estimate``, ``control/feed_command``,
+``pmc/feed_override``, with the override the bridge writes when it is configured first), logged
+at the end of their block (the simulator's ``/clock``, which the recorder's clock follows), and
+the same custom data (the experiment file, the resolved parameters, the software versions).
+
+The messages are serialised as arrays (:func:`turning_force.session.codec.encode`) and written
+a chunk at a time (:meth:`turning_force.session.bag.SessionWriter.write_indexed`): an hour of
+fig8 takes seconds, not the minutes a message at a time would.
+
+What the graph's session has and this one does not (:data:`NOT_RECORDED`): ``/diagnostics``
+(the nodes' rates, ages and kernel paths: there are no nodes), ``pmc/cuts`` and
+``force/reference`` (the cut log and a learned reference: the core run does not hand out the
+gate's cut records), ``force/measured`` (a dynamometer's reading, drawn by the node from its own
+random stream), and the text of ``detail`` in ``pmc/feed_override`` (empty; the reason is
+there). The signals the reader and replay take are equal.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from turning_force.core import kernel
+from turning_force.core.batch import CoreRun, run_core
+from turning_force.core.experiment import Experiment
+from turning_force.core.overrides import get_table
+from turning_force.core.simulate import BACKGROUND_BLOCKS
+from turning_force.session import codec
+from turning_force.session.bag import (
+    CUSTOM_EXPERIMENT,
+    CUSTOM_PARAMETERS,
+    CUSTOM_VERSIONS,
+    SessionWriter,
+    dumps,
+    software_versions,
+    typestore,
+)
+
+__all__ = ['NOT_RECORDED', 'RECORDER', 'TOPICS', 'CoreSession', 'record_core',
+           'write_core_session']
+
+IntArray = npt.NDArray[np.int64]
+FloatArray = npt.NDArray[np.float64]
+
+# The graph's topics (session_recorder's GRAPH_TOPICS) and their types.
+TOPICS: dict[str, str] = {
+    '/servo/currents': 'turning_force_msgs/msg/ServoCurrents',
+    '/servo/joint_state': 'sensor_msgs/msg/JointState',
+    '/sim/cutting_state': 'turning_force_msgs/msg/CuttingState',
+    '/force/estimate': 'turning_force_msgs/msg/ForceEstimate',
+    '/force/reference': 'std_msgs/msg/Float64',
+    '/control/feed_command': 'turning_force_msgs/msg/FeedCommand',
+    '/pmc/feed_override': 'turning_force_msgs/msg/FeedOverride',
+    '/machine/inputs': 'turning_force_msgs/msg/MachineInputs',
+    '/pmc/cuts': 'turning_force_msgs/msg/CutRecord',
+    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
+    '/force/measured': 'geometry_msgs/msg/WrenchStamped',
+}
+# Per block, in the order the graph's messages reach the recorder.
+PER_BLOCK = ('/machine/inputs', '/servo/currents', '/servo/joint_state', '/sim/cutting_state',
+             '/force/estimate', '/control/feed_command', '/pmc/feed_override')
+NOT_RECORDED = ('/diagnostics', '/pmc/cuts', '/force/reference', '/force/measured')
+# Custom data saying who recorded the session.
+RECORDER = 'turning_force.recorder'
+FRAME = 'z_axis'   # lathe_sim's frame
+# Blocks serialised at once (about 1 MiB of messages for fig8's 10-sample blocks: one chunk).
+BATCH_BLOCKS = 2048
+
+
+@dataclass(frozen=True)
+class CoreSession:
+    """What ``run --core --out`` did: the session and the core run it recorded."""
+
+    bag: Path
+    run: CoreRun
+    steps: int
+
+
+def record_core(experiment: Experiment, out: Path,
+                progress: Callable[[int, int], None] | None = None) -> CoreSession:
+    """Run ``experiment`` on the core loop and record it to ``out`` (see the module's text).
+
+    A run long enough for the kernel to pay loads it first (a second, warm), rather than on a
+    thread beside the Python blocks: the writing takes longer than that load anyway."""
+    steps = round(experiment.run.duration_s / experiment.run.control_period_s)
+    if steps >= BACKGROUND_BLOCKS and not kernel.why_python(
+            experiment.estimator, experiment.controller, experiment.bridge, experiment.plant,
+            sections=('lathe_sim',)):
+        with contextlib.suppress(Exception):   # a broken numba: the run says so, in Python
+            kernel.load()
+    run = run_core(experiment)
+    write_core_session(experiment, run, out, progress)
+    return CoreSession(out, run, len(run.currents))
+
+
+def _parameters(experiment: Experiment) -> dict[str, Any]:
+    """The resolved parameters as ``run_lockstep`` embeds them."""
+    from turning_force.io.pmc_server import simulate_pmc
+
+    resolved = experiment.resolved_params()
+    bridge = experiment.bridge
+    pmc = simulate_pmc(bridge.machine_file, bridge.backend, bridge.override_table)
+    resolved['pmc_bridge'].update(pmc.parameters)
+    return resolved
+
+
+def _stamp(ns: IntArray) -> dict[str, IntArray]:
+    return {'header.stamp.sec': ns // 1_000_000_000, 'header.stamp.nanosec': ns % 1_000_000_000}
+
+
+def write_core_session(experiment: Experiment, run: CoreRun, out: Path,
+                       progress: Callable[[int, int], None] | None = None) -> Path:
+    """Write ``run`` (of ``experiment``) as a session folder ``out``."""
+    store = typestore()
+    writer = SessionWriter(out)
+    try:
+        writer.set_custom_data(CUSTOM_VERSIONS, dumps(software_versions()))
+        if experiment.source and Path(experiment.source).is_file():
+            writer.set_custom_data(CUSTOM_EXPERIMENT, Path(experiment.source).read_text())
+        writer.set_custom_data(CUSTOM_PARAMETERS, dumps(_parameters(experiment)))
+        writer.set_custom_data(RECORDER, 'run --core: ' + ', '.join(NOT_RECORDED)
+                               + ' not recorded')
+        for topic, msgtype in TOPICS.items():
+            writer.add_topic(topic, msgtype)
+        _write(writer, store, experiment, run, progress)
+    except BaseException:
+        writer.close()
+        raise
+    writer.close()
+    return out
+
+
+def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreRun,
+           progress: Callable[[int, int], None] | None) -> None:
+    c, chain, plant = run.currents, run.chain, run.plant
+    n, m = len(c), c.samples_per_block
+    period_ns = round(c.sample_period_s * 1e9)
+    first_ns = np.round(c.t0_s * 1e9).astype(np.int64)
+    last_ns = first_ns + round((m - 1) * c.sample_period_s * 1e9)
+    end_ns = last_ns + period_ns   # the clock the recorder logs the block's messages at
+    table = get_table(experiment.bridge.override_table)
+    levels = np.unique(chain.applied_pct[np.isfinite(chain.applied_pct)])
+    bits_of = {float(p): table.encode(float(p))[1] for p in levels}
+    width = max((len(b) for b in bits_of.values()), default=0)
+    bits = np.zeros((n, width), dtype=bool)
+    for pct, pattern in bits_of.items():
+        bits[chain.applied_pct == pct] = pattern
+    # Where the PMC's position is (lathe_sim's joint state): the plant's sum of its feed.
+    feed = c.feed_rate_mm_min
+    position_m = np.cumsum(np.cumsum(feed, axis=1)[:, -1] * c.sample_period_s / 60.0) / 1000.0
+    acted = np.isfinite(chain.requested_override_pct)
+    topics = list(PER_BLOCK)
+    order = {t: k for k, t in enumerate(topics)}
+    # The override the bridge writes when it is configured (the programmed feed, disarmed),
+    # before the first block; logged with it.
+    code, hand_back = table.encode(100.0)
+    initial = _encode(store, '/pmc/feed_override', {
+        **_stamp(np.zeros(1, dtype=np.int64)), 'applied_pct': 100.0, 'requested_pct': np.nan,
+        'pmc_code': code, 'pmc_bits': np.array([hand_back], dtype=bool),
+        'table': table.name, 'armed': False, 'reason': 1,
+        'detail': 'inactive: programmed feed', 'program_enable': -1, 'threading': -1,
+        'operator_dial_pct': np.nan}, 1)
+    for start in range(0, n, BATCH_BLOCKS):
+        k = slice(start, min(start + BATCH_BLOCKS, n))
+        count = k.stop - k.start
+        last = last_ns[k]
+        messages = {
+            '/machine/inputs': ({**_stamp(last), 'program_enable': chain.program_enable[k],
+                                 'threading': chain.threading[k],
+                                 'operator_dial_pct': chain.operator_dial_pct[k]}, None),
+            '/servo/currents': ({**_stamp(first_ns[k]), 'header.frame_id': FRAME,
+                                 'sample_period_s': c.sample_period_s,
+                                 'phase_u_a': c.phase_u_a[k], 'phase_v_a': c.phase_v_a[k],
+                                 'rotor_angle_rad': c.rotor_angle_rad[k],
+                                 'feed_rate_mm_min': feed[k]}, None),
+            '/servo/joint_state': ({**_stamp(last), 'header.frame_id': FRAME,
+                                    'name': np.array([b'z']),
+                                    'position': position_m[k, None],
+                                    'velocity': feed[k, -1:] / 60000.0,
+                                    'effort': plant['force_n'][k, None]}, None),
+            '/sim/cutting_state': ({**_stamp(last), 'header.frame_id': FRAME,
+                                    'force_n': plant['force_n'][k],
+                                    'depth_of_cut_mm': plant['depth_mm'][k],
+                                    'spindle_speed_rpm': plant['spindle_speed_rpm'][k],
+                                    'feed_mm_rev': plant['feed_mm_rev'][k],
+                                    'feed_rate_mm_min': plant['feed_rate_mm_min'][k],
+                                    'specific_cutting_force_n_mm2':
+                                        plant['specific_cutting_force_n_mm2'][k],
+                                    'override_pct': plant['override_pct'][k]}, None),
+            '/force/estimate': ({**_stamp(last), 'header.frame_id': FRAME,
+                                 'force_n': chain.estimated_force_n[k],
+                                 'force_rate_n_s': chain.estimated_force_rate_n_s[k],
+                                 'current_q_a': chain.current_q_a[k],
+                                 'friction_current_a': chain.friction_current_a[k],
+                                 'status': chain.estimate_status[k],
+                                 'detail': _details(chain.estimate_detail, k)}, None),
+            '/control/feed_command': ({
+                **_stamp(last), 'header.frame_id': FRAME,
+                'override_pct': chain.requested_override_pct[k],
+                'tracking_error_n': chain.tracking_error_n[k],
+                'sliding_variable': chain.sliding_variable[k],
+                'reference_force_n': chain.reference_n[k],
+                'controller': experiment.controller.controller,
+                'reference_reachable': chain.reference_reachable[k]}, acted[k]),
+            '/pmc/feed_override': ({
+                **_stamp(last), 'header.frame_id': FRAME, 'applied_pct': chain.applied_pct[k],
+                'requested_pct': chain.gate_requested_pct[k], 'pmc_code': chain.pmc_code[k],
+                'pmc_bits': bits[k], 'table': table.name, 'armed': chain.armed[k],
+                'reason': chain.reason[k], 'program_enable': chain.program_enable[k],
+                'threading': chain.threading[k],
+                'operator_dial_pct': chain.operator_dial_pct[k], 'engaged': chain.engaged[k],
+                'alarm': chain.alarm[k], 'stop_request': chain.stop_request[k]}, None),
+        }
+        pieces: list[tuple[bytes, IntArray, IntArray, int]] = []   # bytes, offsets, block, topic
+        for topic, (columns, keep) in messages.items():
+            if keep is not None:
+                columns = {name: (v[keep] if isinstance(v, np.ndarray) and v.shape[:1] ==
+                                  (count,) else v) for name, v in columns.items()}
+            blocks = np.arange(count) if keep is None else np.flatnonzero(keep)
+            data, offsets = _encode(store, topic, columns, int(blocks.size))
+            pieces.append((data, offsets, blocks, order[topic]))
+        if start == 0:
+            pieces.insert(0, (initial[0], initial[1], np.full(1, -1), order['/pmc/feed_override']))
+        _write_batch(writer, topics, pieces, end_ns[k])
+        if progress is not None:
+            progress(k.stop, n)
+
+
+def _details(details: dict[int, str], k: slice) -> Any:
+    """The estimate's details of blocks ``k`` (by block, where not empty) as a column."""
+    inside = [b for b in details if k.start <= b < k.stop]
+    if not inside:
+        return ''
+    column = np.zeros(k.stop - k.start, dtype=f'S{max(len(details[b].encode()) for b in inside)}')
+    for b in inside:
+        column[b - k.start] = details[b].encode()
+    return column
+
+
+def _encode(store: Any, topic: str, columns: dict[str, Any], count: int
+            ) -> tuple[bytes, IntArray]:
+    return codec.encode(store, TOPICS[topic], columns, count)
+
+
+def _write_batch(writer: SessionWriter, topics: list[str],
+                 pieces: list[tuple[bytes, IntArray, IntArray, int]], end_ns: IntArray) -> None:
+    """The messages of a batch of blocks, block by block in the graph's order (a block's
+    messages in ``topics`` order; block -1, the configured override, first)."""
+    block = np.concatenate([p[2] for p in pieces])
+    topic = np.concatenate([np.full(p[2].size, p[3]) for p in pieces])
+    sizes = np.concatenate([np.diff(p[1]) for p in pieces])
+    starts = np.concatenate([p[1][:-1] + base for p, base in zip(
+        pieces, np.cumsum([0] + [len(p[0]) for p in pieces[:-1]]), strict=True)])
+    data = np.frombuffer(b''.join(p[0] for p in pieces), dtype=np.uint8)
+    order = np.lexsort((topic, block))
+    sizes, starts = sizes[order], starts[order]
+    placed = np.cumsum(sizes) - sizes
+    gather = np.arange(int(sizes.sum()), dtype=np.int64) + np.repeat(starts - placed, sizes)
+    ordered = data[gather]
+    offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    stamps = end_ns[np.maximum(block[order], 0)]
+    writer.write_indexed(topics, topic[order].astype(np.int64), stamps, ordered, offsets)

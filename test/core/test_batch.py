@@ -1,0 +1,342 @@
+"""The batch API (core/batch.py): replay_chain and run_core on the kernel against their Python
+reference (ControlChain block by block), field for field; run_core's result against simulate's;
+its currents against the plant's; replay of a closed-loop run's currents against the run.
+
+Every comparison is to the bit (``assert_array_equal``, NaN equal to NaN): the kernel runs the
+reference's arithmetic in the reference's order, and the issue's 1e-9 is kept for the recorded
+reference session only (recorded through BLAS, test_reference_bag.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from test_kernel import EXPERIMENTS, FIG8, FILES, IN_PYTHON
+
+from turning_force import robustness
+from turning_force.core.batch import (
+    ChainTrace,
+    CoreRun,
+    CurrentArrays,
+    InputArrays,
+    pmc_codes,
+    replay_chain,
+    run_core,
+)
+from turning_force.core.drive import CurrentBlock
+from turning_force.core.errors import ConfigError
+from turning_force.core.estimation import EstimateStatus
+from turning_force.core.experiment import Experiment, load_experiment
+from turning_force.core.overrides import get_table
+from turning_force.core.plant import LathePlant
+from turning_force.core.pmc import Reason
+from turning_force.core.shopfloor import InputValues
+from turning_force.core.simulate import simulate
+
+# Long enough for the engagement and the first depth step of every file (fig8's at 4 s).
+MAX_S = 6.0
+
+
+def shortened(e: Experiment) -> Experiment:
+    if e.run.duration_s <= MAX_S:
+        return e
+    return e.with_sets([f'experiment.duration_s={MAX_S}'])
+
+
+def assert_same_chain(got: ChainTrace, expected: ChainTrace) -> None:
+    for f in dataclasses.fields(ChainTrace):
+        a, b = getattr(got, f.name), getattr(expected, f.name)
+        if isinstance(b, np.ndarray):
+            assert a.dtype == b.dtype, f.name
+            np.testing.assert_array_equal(a, b, err_msg=f.name)
+    assert got.estimate_detail == expected.estimate_detail
+
+
+def assert_same_run(got: CoreRun, expected: CoreRun) -> None:
+    for name, values in expected.result.trace.items():
+        np.testing.assert_array_equal(got.result.trace[name], values, err_msg=name)
+    metrics = {k: v for k, v in expected.result.metrics.items() if k != 'realtime_factor'}
+    assert {k: v for k, v in got.result.metrics.items() if k != 'realtime_factor'} == metrics
+    for f in dataclasses.fields(CurrentArrays):
+        np.testing.assert_array_equal(getattr(got.currents, f.name),
+                                      getattr(expected.currents, f.name), err_msg=f.name)
+    assert_same_chain(got.chain, expected.chain)
+    assert set(got.plant) == set(expected.plant)
+    for name, values in expected.plant.items():
+        np.testing.assert_array_equal(got.plant[name], values, err_msg=name)
+
+
+def assert_simulates(run: CoreRun, e: Experiment) -> None:
+    """run_core's result is simulate's: every trace column, every metric."""
+    result = simulate(e, compiled=run.chain.compiled)
+    for name, values in result.trace.items():
+        np.testing.assert_array_equal(run.result.trace[name], values, err_msg=name)
+    for name, value in result.metrics.items():
+        if name != 'realtime_factor':
+            assert run.result.metrics[name] == value, name
+
+
+def plant_inputs(e: Experiment, currents: CurrentArrays) -> InputArrays:
+    """The simulated machine's inputs at each block's end, as the core loop hands them on."""
+    ends = currents.t_end_s
+    return InputArrays.collect(lambda k: e.plant.inputs_at(float(ends[k])), len(currents))
+
+
+def replays_itself(run: CoreRun, e: Experiment, compiled: bool | None) -> ChainTrace:
+    """Open loop over the run's own currents: the same chain, row for row."""
+    trace = replay_chain(e, run.currents, [(0.0, e.bridge.armed)],
+                         plant_inputs(e, run.currents), compiled=compiled)
+    assert_same_chain(trace, run.chain)
+    return trace
+
+
+@pytest.mark.parametrize('path', FILES, ids=[p.stem for p in FILES])
+def test_every_experiment_file(path):
+    e = shortened(load_experiment(path))
+    reference = run_core(e, compiled=False)
+    assert reference.chain.python_reason == 'compiled=False' and not reference.chain.compiled
+    assert_simulates(reference, e)
+    if path.stem in IN_PYTHON:   # the core loop runs it in Python, and says why
+        run = run_core(e)
+        assert run.chain.compiled_from is None
+        assert run.chain.python_reason == IN_PYTHON[path.stem]
+        with pytest.raises(ConfigError, match='program_enable_required'):
+            run_core(e, compiled=True)
+        assert_same_run(run, reference)
+        trace = replays_itself(reference, e, None)
+        assert trace.python_reason == IN_PYTHON[path.stem]
+        return
+    run = run_core(e, compiled=True)
+    assert run.chain.compiled and run.chain.python_reason == ''
+    assert_same_run(run, reference)
+    assert_simulates(run, e)
+    assert replays_itself(run, e, True).compiled
+    replays_itself(run, e, False)
+
+
+@pytest.mark.parametrize(('scenario', 'controller'), [
+    ('dead time 120 ms', 'smc'), ('servo 2nd order w_n 8', 'adaptive'),
+    ('force fluctuation 5 %', 'pi'),
+])
+def test_robustness_matrix_rows(scenario, controller):
+    row = next(s for s in robustness.MATRIX if s.name == scenario)
+    e = robustness.scenario_experiment(EXPERIMENTS, row, controller).with_sets(
+        ['experiment.duration_s=4.5'])
+    run = run_core(e, compiled=True)
+    assert_same_run(run, run_core(e, compiled=False))
+    replays_itself(run, e, True)
+
+
+@pytest.mark.parametrize('python_blocks', [1, 150, 399])
+def test_the_kernel_takes_over_at_any_block(python_blocks):
+    # The gate's cut detector and overload reaction go over with the rest of the state: the
+    # reaction fires (alarm) before the hand-over at 150 and after it at 1.
+    e = load_experiment(FIG8).with_sets([
+        'pmc_bridge.overload_reaction=stop', 'pmc_bridge.reaction_force_fraction=0.25',
+        'pmc_bridge.reaction_delay_s=0.5', 'pmc_bridge.engage_force_n=300.0',
+        'lathe_sim.force_noise_fraction=0.02', 'experiment.duration_s=4.0'])
+    run = run_core(e, compiled=True, python_blocks=python_blocks)
+    assert run.chain.compiled_from == python_blocks and not run.chain.compiled
+    reference = run_core(e, compiled=False)
+    assert_same_run(run, reference)
+    chain = reference.chain
+    assert chain.engaged.any() and not chain.engaged[0]
+    assert chain.stop_request.any() and np.array_equal(chain.alarm, chain.stop_request)
+
+
+def test_the_currents_are_the_plants():
+    # Stepping the plant at the overrides the run applied gives every sample the run kept.
+    e = load_experiment(FIG8).with_sets(['lathe_sim.current_noise_a=0.05',
+                                         'lathe_sim.force_noise_fraction=0.03',
+                                         'lathe_sim.pmc_dead_time_s=0.04',
+                                         'experiment.duration_s=3.0'])
+    run = run_core(e, compiled=True)
+    plant = LathePlant(e.plant, initial_override_pct=run.plant['override_pct'][0])
+    for k, applied in enumerate(run.plant['override_pct']):
+        block = plant.step(float(applied))
+        kept = run.currents.block(k)
+        assert kept.t0_s == block.currents.t0_s
+        for name in ('phase_u_a', 'phase_v_a', 'rotor_angle_rad', 'feed_rate_mm_min'):
+            np.testing.assert_array_equal(getattr(kept, name), getattr(block.currents, name))
+        assert run.plant['force_n'][k] == block.force_n[-1]
+        assert run.plant['feed_rate_mm_min'][k] == block.currents.feed_rate_mm_min[-1]
+    assert run.currents.samples_per_block == 10 and len(run.currents) == 300
+    assert (run.plant['spindle_speed_rpm'] == e.plant.spindle_speed_rpm).all()
+
+
+def fig8_run(*sets: str) -> tuple[Experiment, CoreRun]:
+    e = load_experiment(FIG8).with_sets([*sets, 'experiment.duration_s=10.0'])
+    return e, run_core(e, compiled=True)
+
+
+def assert_replays_alike(e: Experiment, currents: CurrentArrays,
+                         changes: list[tuple[float, bool]], **kwargs: object) -> ChainTrace:
+    compiled = replay_chain(e, currents, changes, compiled=True, **kwargs)   # type: ignore
+    reference = replay_chain(e, currents, changes, compiled=False, **kwargs)  # type: ignore
+    assert compiled.compiled and not reference.compiled
+    assert_same_chain(compiled, reference)
+    return compiled
+
+
+def test_arming_late_and_disarming_mid_run():
+    e, run = fig8_run()
+    changes = [(0.0, False), (2.0049, True), (5.5, False), (7.0, True), (7.0, False),
+               (8.3, True)]
+    trace = assert_replays_alike(e, run.currents, changes)
+    ends = run.currents.t_end_s
+    reason = trace.reason
+    assert (reason[ends < 2.0049] == Reason.DISARMED).all()
+    assert (trace.applied_pct[ends < 2.0049] == 100.0).all()
+    assert (reason[(ends > 2.1) & (ends < 5.5)] == Reason.NORMAL).all()
+    assert (reason[(ends >= 5.5) & (ends < 8.3)] == Reason.DISARMED).all()
+    assert not trace.armed[(ends >= 5.5) & (ends < 8.3)].any()
+    assert trace.armed[ends >= 8.3].all()
+    # The controller runs throughout: it is the gate that disarms.
+    assert np.isfinite(trace.requested_override_pct).all()
+
+
+def test_an_overload_hold_and_re_arming_under_it():
+    # Held at 700 N; re-armed while the force is still over the limit, the hold stays; once
+    # under it (the depth back to 1 mm after 8 s... here: the limit raised), it clears.
+    e, run = fig8_run()
+    held = e.with_sets(['pmc_bridge.overload_force_n=700.0'])
+    trace = assert_replays_alike(held, run.currents, [(0.0, True), (3.0, False), (3.2, True),
+                                                      (9.0, False), (9.5, True)])
+    assert (trace.reason == Reason.OVERLOAD_HOLD).any()
+    assert trace.alarm[trace.reason == Reason.OVERLOAD_HOLD].all()
+    assert (trace.applied_pct[trace.reason == Reason.OVERLOAD_HOLD] == 0.0).all()
+
+
+def test_nan_blocks_the_watchdog_and_a_stamp_jump():
+    e, run = fig8_run()
+    c = run.currents
+    u, v = c.phase_u_a.copy(), c.phase_v_a.copy()
+    t0 = c.t0_s.copy()
+    u[300:320] = np.nan                 # a dead sensor for 0.2 s: watchdog, filter restart
+    v[500, 3] = np.inf                  # one bad sample
+    t0[700:] -= 0.5                     # the DAQ's clock goes back: refused, then followed
+    broken = dataclasses.replace(c, t0_s=t0, phase_u_a=u, phase_v_a=v)
+    trace = assert_replays_alike(e, broken, [(0.0, True)])
+    status = trace.estimate_status
+    assert (status[300:320] == EstimateStatus.INVALID_INPUT).all()
+    assert status[500] == EstimateStatus.INVALID_INPUT
+    assert trace.estimate_detail[300] == '10 non-finite samples'
+    assert trace.estimate_detail[500] == '1 non-finite samples'
+    assert 'is not after the previous' in trace.estimate_detail[700]
+    assert (status[700:703] == EstimateStatus.INVALID_INPUT).any()
+    assert np.isnan(trace.requested_override_pct[300:320]).all()
+    assert trace.reference_reachable[300:320].all()
+    assert (trace.reason[305:320] == Reason.WATCHDOG).all()
+    assert trace.reason[299] == Reason.NORMAL and trace.reason[330] == Reason.NORMAL
+
+
+def test_every_control_law_and_filter_replays_alike():
+    e = load_experiment(FIG8).with_sets(['experiment.duration_s=6.0'])
+    run = run_core(e.with_sets(['lathe_sim.force_noise_fraction=0.02']), compiled=True)
+    for sets in (['force_controller.controller=adaptive_smc'],
+                 ['force_controller.controller=adaptive_pp', '/**.override_table=fanuc_8bit'],
+                 ['force_controller.controller=adaptive'],
+                 ['force_controller.controller=staircase'],
+                 ['force_estimator.force_filter=lowpass', 'force_controller.smc_surface=nonlinear',
+                  'force_controller.quantiser=error_feedback'],
+                 ['force_estimator.current_range_a=3.0']):
+        assert_replays_alike(e.with_sets(sets), run.currents, [(0.0, True)])
+
+
+def test_the_machines_inputs():
+    e, run = fig8_run()
+    n = len(run.currents)
+    wired = InputArrays(np.arange(n) % 7 == 0, np.full(n, 1, dtype=np.int8),
+                        np.full(n, 0, dtype=np.int8), np.full(n, np.nan))
+    # Inputs that change no decision: the kernel, and the decisions say what they saw.
+    trace = assert_replays_alike(e, run.currents, [(0.0, True)], inputs=wired)
+    assert (trace.program_enable[:7] == 1).all() and (trace.threading == 0).all()
+    # A function of the block gives the same.
+    again = replay_chain(e, run.currents, [(0.0, True)], inputs=lambda k: wired(k),
+                         compiled=True)
+    assert_same_chain(again, trace)
+    # Threading stands the gate down, and a dial lowers it: Python, saying why.
+    threading = dataclasses.replace(wired, threading=np.full(n, 1, dtype=np.int8))
+    stood_down = e.with_sets(['pmc_bridge.threading_stand_down=true'])
+    with pytest.raises(ConfigError, match='threading'):
+        replay_chain(stood_down, run.currents, inputs=threading, compiled=True)
+    trace = replay_chain(stood_down, run.currents, [(0.0, True)], inputs=threading)
+    assert 'threading' in trace.python_reason and trace.compiled_from is None
+    assert (trace.reason[1:] == Reason.OPERATOR).all()
+    dial = dataclasses.replace(wired, operator_dial_pct=np.full(n, 50.0))
+    trace = replay_chain(e.with_sets(['pmc_bridge.operator_dial=min']), run.currents,
+                         [(0.0, True)], inputs=dial)
+    assert 'dial' in trace.python_reason and trace.applied_pct.max() <= 50.0
+    assert (trace.operator_dial_pct[7:] == 50.0).all()
+
+
+def head(trace: ChainTrace, n: int) -> ChainTrace:
+    return dataclasses.replace(trace, estimate_detail={
+        k: text for k, text in trace.estimate_detail.items() if k < n}, **{
+        f.name: getattr(trace, f.name)[:n] for f in dataclasses.fields(ChainTrace)
+        if isinstance(getattr(trace, f.name), np.ndarray)})
+
+
+def test_short_replays_and_lists_of_blocks():
+    e, run = fig8_run()
+    short = [run.currents.block(k) for k in range(50)]
+    # A list of blocks of one shape goes to the kernel, however short; one of another length
+    # to Python.
+    compiled = replay_chain(e, short, [(0.0, True)])
+    assert compiled.compiled
+    odd = [*short[:-1], CurrentBlock(short[-1].t0_s, 1e-3, short[-1].phase_u_a[:5],
+                                     short[-1].phase_v_a[:5], short[-1].rotor_angle_rad[:5],
+                                     short[-1].feed_rate_mm_min[:5])]
+    with pytest.raises(ConfigError, match='block 49: 5 samples'):
+        replay_chain(e, odd, compiled=True)
+    trace = replay_chain(e, odd, [(0.0, True)])
+    assert trace.python_reason.startswith('the blocks differ')
+    assert_same_chain(head(trace, 49), head(compiled, 49))
+    assert trace.estimate_status[-1] == EstimateStatus.OK   # a shorter block is estimated
+
+
+def test_current_arrays():
+    _, run = fig8_run()
+    c = run.currents
+    block = c.block(3)
+    assert block.phase_u_a.base is not None and len(block) == 10   # a view
+    again = CurrentArrays.from_blocks([c.block(k) for k in range(len(c))])
+    for f in dataclasses.fields(CurrentArrays):
+        np.testing.assert_array_equal(getattr(again, f.name), getattr(c, f.name))
+    np.testing.assert_array_equal(c.t_end_s, run.result.trace['t_s'])
+
+
+@pytest.mark.parametrize('table', ['fanuc_0t_4bit', 'fanuc_8bit', 'ideal'])
+def test_pmc_codes_are_the_tables(table):
+    t = get_table(table)
+    applied = np.array([t.quantise(p) for p in np.linspace(0.0, t.max_pct, 97)])
+    np.testing.assert_array_equal(pmc_codes(t, applied), [t.encode(p)[0] for p in applied])
+    if not t.continuous:
+        with pytest.raises(ValueError, match='not a level'):
+            pmc_codes(t, np.array([t.levels_pct[1] + 0.5]))
+
+
+def test_input_arrays_carry_the_last_given():
+    given = np.array([False, True, False, True, False])
+    inputs = InputArrays(given, np.array([0, 1, 0, 0, 0], dtype=np.int8),
+                         np.array([0, -1, 0, 1, 0], dtype=np.int8),
+                         np.array([math.nan, 80.0, 0.0, math.nan, 0.0]))
+    assert inputs(0) is None
+    assert inputs(1) == InputValues(True, None, 80.0)
+    assert inputs(3) == InputValues(False, True, None)
+    enable, threading, dial = inputs.seen()
+    np.testing.assert_array_equal(enable, [-1, 1, 1, 0, 0])
+    np.testing.assert_array_equal(threading, [-1, -1, -1, 1, 1])
+    np.testing.assert_array_equal(dial, [math.nan, 80.0, 80.0, math.nan, math.nan])
+
+
+def test_a_friction_re_zero_in_air_and_its_notes():
+    e = load_experiment(FIG8).with_sets([
+        'lathe_sim.depth_times_s=[0.0, 2.0, 6.0]', 'lathe_sim.depth_mm=[0.0, 1.0, 2.0]',
+        'lathe_sim.friction_at_min_feed_a=0.81', 'experiment.duration_s=3.0'])
+    run = run_core(e, compiled=True)
+    assert_same_run(run, run_core(e, compiled=False))
+    assert any('re-zeroed' in text for text in run.chain.estimate_detail.values())
+    replays_itself(run, e, True)
