@@ -386,23 +386,26 @@ def _replay_compiled(chain: ControlChain, currents: CurrentArrays,
     ep, es, cp, cs, clevels, gp, gs, glevels = pack.chain_arrays(chain,
                                                                  currents.sample_period_s)
     n = len(currents)
-    rows = np.empty((n, jit.CHAIN_COLUMNS))
+    # The kernel's rows a chunk at a time, into the trace as each is done: an hour's replay
+    # holds the trace and one chunk of rows, not a second copy of the trace.
+    rows = np.empty((min(n, REPLAY_CHUNK_BLOCKS), jit.CHAIN_COLUMNS))
+    trace = ChainTrace._empty(n)
     times = np.array([t for t, _ in arm_changes], dtype=np.float64)
     armed = np.array([float(a) for _, a in arm_changes], dtype=np.float64)
     t0, u, v = _c(currents.t0_s), _c(currents.phase_u_a), _c(currents.phase_v_a)
     angle, feed = _c(currents.rotor_angle_rad), _c(currents.feed_rate_mm_min)
-    step = n if progress is None else REPLAY_CHUNK_BLOCKS
     change = 0
-    for start in range(0, n, step):
-        end = min(start + step, n)
+    for start in range(0, n, REPLAY_CHUNK_BLOCKS):
+        end = min(start + REPLAY_CHUNK_BLOCKS, n)
+        chunk = rows[:end - start]
         change = jit.replay_blocks(ep, es, cp, cs, clevels, gp, gs, glevels, t0[start:end],
                                    float(currents.sample_period_s), u[start:end], v[start:end],
                                    angle[start:end], feed[start:end], times, armed, change,
-                                   rows[start:end])
+                                   chunk)
+        _rows_into(jit, chunk, trace, start, chain.gate.table, chain.estimator.settings,
+                   currents)
         if progress is not None:
             progress(end, n)
-    trace = ChainTrace._empty(n)
-    _rows_into(jit, rows, trace, 0, chain.gate.table, chain.estimator.settings, currents)
     return trace
 
 
@@ -415,13 +418,13 @@ def _c(values: FloatArray) -> FloatArray:
 def _rows_into(jit: Any, rows: FloatArray, trace: ChainTrace, first: int,
                table: OverrideTable, settings: EstimatorSettings,
                currents: CurrentArrays) -> None:
-    """The kernel's chain rows ``first`` .. n - 1 into the trace's arrays (the inputs the
-    decisions saw are not the kernel's business: the caller fills them); the estimate's
-    details in the reference's words."""
+    """The kernel's chain rows of blocks ``first`` .. ``first + len(rows) - 1`` into the
+    trace's arrays (the inputs the decisions saw are not the kernel's business: the caller
+    fills them); the estimate's details in the reference's words."""
     from turning_force.core.kernel.components import detail_text
 
-    r = rows[first:]
-    sl = slice(first, None)
+    r = rows
+    sl = slice(first, first + len(rows))
     acted = r[:, jit.CH_ACTED] != 0.0
     trace.estimated_force_n[sl] = r[:, jit.CH_FORCE]
     trace.estimated_force_rate_n_s[sl] = r[:, jit.CH_RATE]
@@ -498,7 +501,7 @@ class _Keeper:
 
     def kernel_done(self, first: int) -> None:
         assert self.rows is not None
-        _rows_into(kernel.load(), self.rows, self.chain, first, self.table,
+        _rows_into(kernel.load(), self.rows[first:], self.chain, first, self.table,
                    self.experiment.estimator, self.currents)
         # The simulated machine wires no inputs where the kernel runs (kernel.NEUTRAL).
         self.chain.program_enable[first:] = -1
