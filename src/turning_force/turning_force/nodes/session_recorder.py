@@ -5,7 +5,12 @@ Subscribes, without deserialising, to every topic of the graph (``servo/currents
 ``control/feed_command``, ``pmc/feed_override``, ``machine/inputs``, ``pmc/cuts``,
 ``/diagnostics``, and a dynamometer's ``force/measured`` where one is fitted for calibration)
 and writes them to
-``output_dir`` as they come, stamped with this node's clock (sim time in lock-step). Embeds the
+``output_dir`` as they come, stamped with this node's clock at receipt (sim time in lock-step:
+read once per step of ``/clock``, not per message; else the system clock, which the ROS clock
+is without sim time). A writer thread does the disk work (the MCAP records, the zstd chunk,
+the flush with fsync), so that the executor that runs the recorder (with the control graph, in
+one process) never waits for the disk (``background=False`` writes on the executor's thread, as
+it once did, for comparison). Embeds the
 experiment file (``experiment_file``), the software versions, and the resolved parameters: its
 owner passes them (:meth:`SessionRecorderNode.add_custom_data`, as ``turning-force run`` does),
 or with ``capture_parameters`` it asks the graph's nodes for theirs over their parameter
@@ -23,12 +28,15 @@ import contextlib
 import datetime
 import functools
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
+from rclpy.clock import JumpThreshold
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
@@ -83,15 +91,19 @@ def msgtype(cls: type) -> str:
 
 
 class SessionRecorderNode(Node):
-    """The graph's topics to one rosbag2 MCAP folder."""
+    """The graph's topics to one rosbag2 MCAP folder.
 
-    def __init__(self, **kwargs: Any) -> None:
+    ``background``: the disk work on a writer thread (true), or on the executor's thread.
+    """
+
+    def __init__(self, *, background: bool = True, **kwargs: Any) -> None:
         super().__init__('session_recorder', **kwargs)
         stamp = datetime.datetime.now().strftime('%Y%m%d_%H%M%S')
         # Declared from the core's RecorderSettings: ranges checked, a mistyped key refused.
         self.parameters = SettingsParameters(self, RecorderSettings)
         path = Path(self.get_parameter('output_dir').value or f'bags/session_{stamp}')
-        self.writer = SessionWriter(path, float(self.get_parameter('flush_period_s').value))
+        self.writer = SessionWriter(path, float(self.get_parameter('flush_period_s').value),
+                                    background=background)
         self.writer.set_custom_data(CUSTOM_VERSIONS, dumps(software_versions()))
         experiment = str(self.get_parameter('experiment_file').value)
         if experiment:
@@ -99,6 +111,16 @@ class SessionRecorderNode(Node):
         self.diagnostics = Diagnostics(self)
         self._closed = False
         self.failure: BagError | None = None   # why recording stopped, if a write failed
+        # The receipt time of every message: sim time is read once after each /clock step
+        # (the clock's jump callback marks it out of date), the system clock is cheap.
+        self._sim_time = bool(self.get_parameter('use_sim_time').value)
+        self._now_ns = 0
+        self._clock_moved = True
+        self._jump = (self.get_clock().create_jump_callback(
+            JumpThreshold(min_forward=Duration(nanoseconds=1),
+                          min_backward=Duration(nanoseconds=-1)),
+            pre_callback=self._on_clock_jump) if self._sim_time else None)
+        self.create_timer(1.0, self._check_writer)
         for topic, cls in GRAPH_TOPICS.items():
             name = self.resolve_topic_name(topic)
             self.writer.add_topic(name, msgtype(cls))
@@ -136,16 +158,38 @@ class SessionRecorderNode(Node):
         self._captured[node] = {n: parameter_value_to_python(v)
                                 for n, v in zip(names, response.values, strict=True)}
 
+    def _on_clock_jump(self) -> None:
+        self._clock_moved = True
+
+    def _stamp_ns(self) -> int:
+        """Receipt time [ns]: this node's clock, without a clock read per message."""
+        if not self._sim_time:
+            return time.time_ns()
+        if self._clock_moved:
+            self._clock_moved = False
+            self._now_ns = self.get_clock().now().nanoseconds
+        return self._now_ns
+
     def _callback(self, name: str) -> Any:
+        write, received, stamp_ns = self.writer.write, self.diagnostics.received, self._stamp_ns
+
         def record(data: bytes) -> None:
             if not self._closed:
                 try:
-                    self.writer.write(name, self.get_clock().now().nanoseconds, data)
+                    write(name, stamp_ns(), data)
                 except BagError as exc:
                     self._failed(exc)
                     return
-                self.diagnostics.received(name)
+                received(name)
         return record
+
+    def _check_writer(self) -> None:
+        """A failure of the writer thread said within a second, messages coming or not; the
+        queue's depth on /diagnostics."""
+        if self.writer.failure is not None and not self._closed:
+            self._failed(self.writer.failure)
+        if self.writer.background:
+            self.diagnostics.set_value('queue_high_water', self.writer.queue_high_water)
 
     def _failed(self, exc: BagError) -> None:
         """Stop recording for good; say it once in the log and on /diagnostics for as long as
@@ -179,6 +223,9 @@ class SessionRecorderNode(Node):
     def destroy_node(self) -> None:
         with contextlib.suppress(BagError):   # logged by close(); the node goes all the same
             self.close()
+        if getattr(self, '_jump', None) is not None:
+            self._jump.unregister()
+            self._jump = None
         super().destroy_node()
 
 
