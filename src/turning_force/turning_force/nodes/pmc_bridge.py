@@ -48,7 +48,7 @@ from typing import Any
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Header
 from std_srvs.srv import Trigger
 from turning_force_msgs.msg import (
     CutRecord,
@@ -139,6 +139,7 @@ class PmcBridgeNode(LifecycleNode):
         self.diagnostics.watch('control/feed_command', stale_after_s=settings.watchdog_period_s)
         self.diagnostics.set_value('state', 'unconfigured')
         self._publisher = self.create_publisher(FeedOverride, 'pmc/feed_override', 10)
+        self._override = FeedOverride()   # refilled per write (rclpy serialises on publish)
         self._cut_publisher = self.create_publisher(CutRecord, 'pmc/cuts', 10)
         self._reference_publisher = self.create_publisher(Float64, 'force/reference',
                                                           REFERENCE_QOS)
@@ -459,19 +460,26 @@ class PmcBridgeNode(LifecycleNode):
         if answers is None and not always and outcome == self._last_published:
             return
         self._last_published = outcome
-        msg = FeedOverride(
-            applied_pct=written.applied_pct, requested_pct=written.requested_pct,
-            pmc_code=written.code, pmc_bits=list(written.bits),
-            table=self.table.name, armed=written.armed, reason=int(written.reason),
-            detail=written.detail, program_enable=tristate(written.inputs.program_enable),
-            threading=tristate(written.inputs.threading),
-            operator_dial_pct=(float('nan') if written.inputs.operator_dial_pct is None
-                               else float(written.inputs.operator_dial_pct)),
-            engaged=written.engaged, alarm=written.alarm, stop_request=written.stop_request)
+        msg = self._override
+        msg.applied_pct = written.applied_pct
+        msg.requested_pct = written.requested_pct
+        msg.pmc_code = written.code
+        msg.pmc_bits = list(written.bits)
+        msg.table = self.table.name
+        msg.armed = written.armed
+        msg.reason = int(written.reason)
+        msg.detail = written.detail
+        msg.program_enable = tristate(written.inputs.program_enable)
+        msg.threading = tristate(written.inputs.threading)
+        msg.operator_dial_pct = (float('nan') if written.inputs.operator_dial_pct is None
+                                 else float(written.inputs.operator_dial_pct))
+        msg.engaged = written.engaged
+        msg.alarm = written.alarm
+        msg.stop_request = written.stop_request
         if answers is not None:
             msg.header = answers.header   # answers this block (lock-step matches on it)
         else:
-            msg.header.stamp = self.get_clock().now().to_msg()
+            msg.header = Header(stamp=self.get_clock().now().to_msg())
         self._publisher.publish(msg)
         self.diagnostics.published('pmc/feed_override')
         if written.reason != self._last_reason:
