@@ -12,6 +12,8 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 
+from turning_force.nodes.spin import timer_callback
+
 __all__ = ['LATENCY_KEYS', 'AnswerLatency', 'Diagnostics']
 
 # The keys :class:`AnswerLatency` reports on /diagnostics (lathe_sim's status).
@@ -50,7 +52,7 @@ class Diagnostics:
         self._values: dict[str, str] = {}
         self._last_report_s: float | None = None  # the clock may not run yet (lock-step)
         self._providers: list[Callable[[], dict[str, str]]] = []
-        self._timer = node.create_timer(period_s, self.report)
+        self._timer = node.create_timer(period_s, timer_callback(self.report))
 
     def add_provider(self, values: Callable[[], dict[str, str]]) -> None:
         """``values()`` is asked for key/value pairs at each report (it may :meth:`warn`)."""

@@ -29,7 +29,7 @@ from turning_force.nodes.convert import (
 )
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import run_nodes
+from turning_force.nodes.spin import run_nodes, timer_callback
 
 __all__ = ['ForceEstimatorNode', 'main']
 
@@ -50,7 +50,7 @@ class ForceEstimatorNode(Node):
         self.create_subscription(ServoCurrents, 'servo/currents', self._on_currents, 10)
         self._watching = False
         self._logged_scale = 1.0
-        self.create_timer(STALE_CHECK_S, self._check_stale)
+        self.create_timer(STALE_CHECK_S, timer_callback(self._check_stale))
 
     def _make_estimator(self, settings: EstimatorSettings) -> ForceEstimator:
         """The estimator on the compiled kernel where it covers the settings (in Python

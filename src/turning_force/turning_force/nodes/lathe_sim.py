@@ -55,7 +55,7 @@ from turning_force.nodes.convert import (
 )
 from turning_force.nodes.diagnostics import AnswerLatency, Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import run_nodes
+from turning_force.nodes.spin import run_nodes, timer_callback
 
 __all__ = ['LatheSimNode', 'main']
 
@@ -122,7 +122,7 @@ class LatheSimNode(Node):
                           if settings.dynamometer else None)
         self.create_subscription(FeedOverride, 'pmc/feed_override', self._on_override, 10)
         if not lockstep:
-            self.create_timer(settings.control_period_s, self._tick)
+            self.create_timer(settings.control_period_s, timer_callback(self._tick))
 
     def _coil_reader(self, override_table: str) -> Any:
         """The PMC's input image on Modbus/TCP, when ``backend`` is ``modbus_tcp``."""

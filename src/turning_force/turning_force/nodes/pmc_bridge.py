@@ -79,7 +79,7 @@ from turning_force.nodes.convert import (
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import run_nodes
+from turning_force.nodes.spin import run_nodes, timer_callback
 
 __all__ = ['BridgeStartError', 'PmcBridgeNode', 'SimulatedPmc', 'main']
 
@@ -148,7 +148,7 @@ class PmcBridgeNode(LifecycleNode):
         self.create_subscription(ForceEstimate, 'force/estimate', self._on_estimate, 10)
         self.create_service(Trigger, '~/arm', self._on_arm)
         self.create_service(Trigger, '~/disarm', self._on_disarm)
-        self.create_timer(settings.control_period_s, self._on_timer)
+        self.create_timer(settings.control_period_s, timer_callback(self._on_timer))
         if self.get_parameter('autostart').value if autostart is None else autostart:
             self.start()
 

@@ -57,7 +57,7 @@ from turning_force.core.experiment import SETTINGS_OF, RecorderSettings
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import run_nodes
+from turning_force.nodes.spin import run_nodes, timer_callback
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
     CUSTOM_PARAMETERS,
@@ -120,7 +120,7 @@ class SessionRecorderNode(Node):
             JumpThreshold(min_forward=Duration(nanoseconds=1),
                           min_backward=Duration(nanoseconds=-1)),
             pre_callback=self._on_clock_jump) if self._sim_time else None)
-        self.create_timer(1.0, self._check_writer)
+        self.create_timer(1.0, timer_callback(self._check_writer))
         for topic, cls in GRAPH_TOPICS.items():
             name = self.resolve_topic_name(topic)
             self.writer.add_topic(name, msgtype(cls))

@@ -7,20 +7,30 @@ while the context is still valid, so that a recorder closes its session properly
 
 from __future__ import annotations
 
+import gc
+import inspect
 import os
 import signal
 import sys
 from collections.abc import Callable, Sequence
 from types import FrameType
+from typing import Any
 
 import rclpy
+from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from turning_force.core import kernel
 from turning_force.core.errors import ConfigError, TurningForceError
 
-__all__ = ['MAX_DOMAIN_ID', 'check_domain_id', 'run_nodes']
+__all__ = ['EXECUTOR_ENV', 'MAX_DOMAIN_ID', 'check_domain_id', 'freeze_heap', 'make_executor',
+           'run_nodes', 'timer_callback']
+
+# ``TURNING_FORCE_EXECUTOR=single`` runs ``ros2 run`` nodes on rclpy's SingleThreadedExecutor
+# instead of its EventsExecutor (ten times the message rate here; see ROS2_FROM_PYPI.md).
+EXECUTOR_ENV = 'TURNING_FORCE_EXECUTOR'
 
 # The largest domain Fast DDS can map to UDP ports (port base 7400, domain gain 250).
 MAX_DOMAIN_ID = 232
@@ -36,6 +46,42 @@ def check_domain_id() -> None:
                           f'{MAX_DOMAIN_ID}')
 
 
+def make_executor(context: Context | None = None, kind: str = 'events') -> Any:
+    """rclpy's EventsExecutor (``events``), or the SingleThreadedExecutor (``single``, and
+    where this rclpy has no EventsExecutor)."""
+    if kind == 'events':
+        try:
+            from rclpy.experimental import EventsExecutor  # type: ignore[attr-defined]
+        except ImportError:  # an rclpy without it: the standard executor, slower
+            return SingleThreadedExecutor(context=context)
+        return EventsExecutor(context=context)
+    if kind != 'single':
+        raise ConfigError(f'executor {kind!r}: expected events or single')
+    return SingleThreadedExecutor(context=context)
+
+
+def timer_callback(callback: Callable[[], object]) -> Callable[[], None]:
+    """``callback`` for ``create_timer``, its signature given in advance: rclpy's
+    EventsExecutor looks for a ``TimerInfo`` parameter with ``inspect.signature`` at every
+    call of a timer (tens of microseconds; a bound method cannot carry the answer)."""
+    def call() -> None:
+        callback()
+    call.__signature__ = inspect.Signature()  # type: ignore[attr-defined]
+    return call
+
+
+def freeze_heap() -> None:
+    """Collect once, then keep what start-up made out of the garbage collector's scans.
+
+    Start-up (numpy, scipy, rclpy, numba's kernel) leaves hundreds of thousands of objects
+    that live as long as the process; a full collection walks them all (hundreds of ms seen
+    here, inside a control period). Frozen, they are never walked again; what the nodes make
+    while running is collected as before.
+    """
+    gc.collect()
+    gc.freeze()
+
+
 def run_nodes(make: Callable[[], list[Node]], args: Sequence[str] | None = None) -> int:
     """Create the nodes ``make`` returns and spin them on one executor until signalled."""
     try:
@@ -45,6 +91,12 @@ def run_nodes(make: Callable[[], list[Node]], args: Sequence[str] | None = None)
         return 2
     rclpy.init(args=list(args) if args is not None else None,
                signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        executor = make_executor(kind=os.environ.get(EXECUTOR_ENV, 'events').strip() or 'events')
+    except ConfigError as exc:
+        print(f'turning_force: {EXECUTOR_ENV}: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
     stop = False
 
     def request_stop(signum: int, frame: FrameType | None) -> None:
@@ -53,7 +105,6 @@ def run_nodes(make: Callable[[], list[Node]], args: Sequence[str] | None = None)
 
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     nodes: list[Node] = []
-    executor = SingleThreadedExecutor()
     try:
         try:
             nodes = make()
@@ -62,8 +113,13 @@ def run_nodes(make: Callable[[], list[Node]], args: Sequence[str] | None = None)
             return 2
         for node in nodes:
             executor.add_node(node)
+        freeze_heap()   # what start-up made is never scanned again
+        kernel_frozen = False
         while not stop and rclpy.ok():
             executor.spin_once(timeout_sec=0.1)
+            if not kernel_frozen and kernel.loaded() is not None:
+                gc.freeze()   # the kernel, loaded in the background: as long-lived
+                kernel_frozen = True
     finally:
         for node in nodes:
             executor.remove_node(node)
