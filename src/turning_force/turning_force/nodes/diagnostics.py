@@ -155,8 +155,10 @@ class AnswerLatency:
     before the block goes out, and :meth:`answered` when a ``FeedOverride`` arrives: both ends
     are seen by one node, on one monotonic clock. A block whose answer has not come when the
     next block goes out is a missed period; its answer, if it comes later, still counts in the
-    latencies. Blocks before the first answer (the graph starting, discovery) are not counted.
-    Costs a dictionary update per block; the percentiles are taken once per report.
+    latencies. The window is the last ``window_blocks`` blocks whose period is over (the one
+    going on is judged when the next goes out). Blocks before the first answer (the graph
+    starting, discovery) are not counted. Costs a dictionary update per block; the
+    percentiles are taken once per report.
     """
 
     # Blocks whose answer may still come late (beyond that: lost).
@@ -164,41 +166,43 @@ class AnswerLatency:
 
     def __init__(self, window_blocks: int, period_s: float) -> None:
         self.period_s = period_s
-        self._latencies_ns: deque[int] = deque(maxlen=max(int(window_blocks), 1))
-        self._missed: deque[bool] = deque(maxlen=max(int(window_blocks), 1))
-        self._sent: dict[int, int] = {}     # answer stamp -> published at [monotonic ns]
-        self._waiting: int | None = None     # the stamp of the last block, until answered
+        self.window_blocks = max(int(window_blocks), 1)
+        # Per block: [latency ns or -1 while unanswered, missed]; the last is the current one.
+        self._window: deque[list[int]] = deque(maxlen=self.window_blocks + 1)
+        self._sent: dict[int, tuple[int, list[int]]] = {}   # stamp -> (published at, entry)
         self._started = False
         self.missed_total = 0
         self.answered_total = 0
 
     def published(self, stamp_ns: int, now_ns: int) -> None:
         """Block ``stamp_ns`` goes out at ``now_ns`` (monotonic)."""
-        if self._started:
-            missed = self._waiting is not None
-            self._missed.append(missed)
-            self.missed_total += missed
-        self._waiting = stamp_ns
+        if not self._started:
+            self._window.clear()
+        elif self._window[-1][0] < 0:   # the block before had no answer in its period
+            self._window[-1][1] = 1
+            self.missed_total += 1
+        entry = [-1, 0]
+        self._window.append(entry)
         sent = self._sent
-        sent[stamp_ns] = now_ns
+        sent[stamp_ns] = (now_ns, entry)
         if len(sent) > self.LATE_BLOCKS:
             del sent[next(iter(sent))]   # the oldest (dicts keep insertion order)
 
     def answered(self, stamp_ns: int, now_ns: int) -> bool:
         """An override stamped ``stamp_ns`` arrived at ``now_ns``; whether it answers a block."""
-        sent_ns = self._sent.pop(stamp_ns, None)
-        if sent_ns is None:
+        found = self._sent.pop(stamp_ns, None)
+        if found is None:
             return False
+        sent_ns, entry = found
         self._started = True
-        if self._waiting == stamp_ns:
-            self._waiting = None
-        self._latencies_ns.append(now_ns - sent_ns)
+        entry[0] = now_ns - sent_ns
         self.answered_total += 1
         return True
 
     def values(self) -> dict[str, str]:
         """The window's statistics, as /diagnostics values ([ms], 3 decimals: microseconds)."""
-        latencies = np.fromiter(self._latencies_ns, dtype=np.float64) * 1e-6
+        done = list(self._window)[:-1]   # blocks whose period is over
+        latencies = np.array([e[0] for e in done if e[0] >= 0], dtype=np.float64) * 1e-6
         if latencies.size:
             p50, p99 = np.percentile(latencies, (50.0, 99.0))
             peak = float(latencies.max())
@@ -207,6 +211,6 @@ class AnswerLatency:
         return {'answer_latency_p50_ms': f'{p50:.3f}', 'answer_latency_p99_ms': f'{p99:.3f}',
                 'answer_latency_max_ms': f'{peak:.3f}',
                 'answered_blocks': str(latencies.size),
-                'missed_periods': str(sum(self._missed)),
+                'missed_periods': str(sum(e[1] for e in done)),
                 'missed_periods_total': str(self.missed_total),
-                'latency_window_s': f'{self._latencies_ns.maxlen * self.period_s:g}'}
+                'latency_window_s': f'{self.window_blocks * self.period_s:g}'}
