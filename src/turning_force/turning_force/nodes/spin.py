@@ -25,12 +25,16 @@ from rclpy.signals import SignalHandlerOptions
 from turning_force.core import kernel
 from turning_force.core.errors import ConfigError, TurningForceError
 
-__all__ = ['EXECUTOR_ENV', 'MAX_DOMAIN_ID', 'check_domain_id', 'freeze_heap', 'make_executor',
-           'run_nodes', 'timer_callback']
+__all__ = ['EXECUTOR_ENV', 'MAX_DOMAIN_ID', 'RT_PRIORITY_ENV', 'check_domain_id', 'freeze_heap',
+           'make_executor', 'real_time_priority', 'run_nodes', 'timer_callback']
 
 # ``TURNING_FORCE_EXECUTOR=single`` runs ``ros2 run`` nodes on rclpy's SingleThreadedExecutor
 # instead of its EventsExecutor (ten times the message rate here; see ROS2_FROM_PYPI.md).
 EXECUTOR_ENV = 'TURNING_FORCE_EXECUTOR'
+# ``TURNING_FORCE_RT_PRIORITY=N`` (1-99) runs a node's process under the SCHED_FIFO real-time
+# policy at priority N, DDS threads included: on a machine PC that also does other work, the
+# control loop is then not queued behind it (the recorder's writer thread stays normal).
+RT_PRIORITY_ENV = 'TURNING_FORCE_RT_PRIORITY'
 
 # The largest domain Fast DDS can map to UDP ports (port base 7400, domain gain 250).
 MAX_DOMAIN_ID = 232
@@ -60,6 +64,21 @@ def make_executor(context: Context | None = None, kind: str = 'events') -> Any:
     return SingleThreadedExecutor(context=context)
 
 
+def real_time_priority() -> str:
+    """Put this thread (and the threads it starts after) under SCHED_FIFO at the priority
+    ``TURNING_FORCE_RT_PRIORITY`` gives; '' when done or not asked, else why not."""
+    text = os.environ.get(RT_PRIORITY_ENV, '').strip()
+    if not text:
+        return ''
+    if not (text.isdigit() and 1 <= int(text) <= 99):
+        raise ConfigError(f'{RT_PRIORITY_ENV}={text!r}: expected a priority from 1 to 99')
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(text)))
+    except (OSError, AttributeError) as exc:   # no CAP_SYS_NICE, or not Linux
+        return f'{RT_PRIORITY_ENV}={text}: not granted ({exc}); running at normal priority'
+    return ''
+
+
 def timer_callback(callback: Callable[[], object]) -> Callable[[], None]:
     """``callback`` for ``create_timer``, its signature given in advance: rclpy's
     EventsExecutor looks for a ``TimerInfo`` parameter with ``inspect.signature`` at every
@@ -86,9 +105,12 @@ def run_nodes(make: Callable[[], list[Node]], args: Sequence[str] | None = None)
     """Create the nodes ``make`` returns and spin them on one executor until signalled."""
     try:
         check_domain_id()
+        refused = real_time_priority()   # before rclpy.init: DDS's threads inherit it
     except ConfigError as exc:
         print(f'turning_force: {exc}', file=sys.stderr)
         return 2
+    if refused:
+        print(f'turning_force: warning: {refused}', file=sys.stderr)
     rclpy.init(args=list(args) if args is not None else None,
                signal_handler_options=SignalHandlerOptions.NO)
     try:
