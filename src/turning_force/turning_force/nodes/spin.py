@@ -33,7 +33,8 @@ __all__ = ['EXECUTOR_ENV', 'MAX_DOMAIN_ID', 'RT_PRIORITY_ENV', 'check_domain_id'
 EXECUTOR_ENV = 'TURNING_FORCE_EXECUTOR'
 # ``TURNING_FORCE_RT_PRIORITY=N`` (1-99) runs a node's process under the SCHED_FIFO real-time
 # policy at priority N, DDS threads included: on a machine PC that also does other work, the
-# control loop is then not queued behind it (the recorder's writer thread stays normal).
+# control loop is then not queued behind it. (The recorder's writer thread inherits it: at a
+# lower priority it would hold the interpreter lock while preempted, and stall the loop.)
 RT_PRIORITY_ENV = 'TURNING_FORCE_RT_PRIORITY'
 
 # The largest domain Fast DDS can map to UDP ports (port base 7400, domain gain 250).

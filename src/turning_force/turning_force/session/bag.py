@@ -298,9 +298,6 @@ class SessionWriter:
 
     def _drain(self) -> None:
         """The writer thread: batches to the file, the flush when due, until closed."""
-        with contextlib.suppress(OSError, AttributeError):   # inherited from a real-time node
-            if os.sched_getscheduler(0) != os.SCHED_OTHER:   # the disk at normal priority
-                os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
         write, flush_period_s = self._writer.write, self._flush_period_s
         while True:
             with self._wake:
