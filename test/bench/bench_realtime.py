@@ -14,7 +14,8 @@ status (``answer_latency_p50_ms``, ``answer_latency_p99_ms``, ``answer_latency_m
 
 The first ``--warmup`` seconds (discovery, the kernel loading) are left out. Printed per graph:
 the median of the windows' p50, the worst window's p99, the largest latency, the periods
-missed after the warm-up, and the blocks the simulator's wall timer put out per second. Measures; asserts nothing.
+missed after the warm-up, and the blocks the simulator's wall timer put out per second.
+Measures; asserts nothing.
 Run: ``.venv/bin/python test/bench/bench_realtime.py [--seconds 60 | --minutes 10]
 [--only one|single|split|one-rt|split-rt]``.
 """

@@ -17,12 +17,12 @@ from turning_force_msgs.msg import FeedOverride, ServoCurrents
 
 from turning_force.core.experiment import load_experiment
 from turning_force.core.overrides import get_table
+from turning_force.nodes.convert import last_sample_ns
 from turning_force.nodes.diagnostics import LATENCY_KEYS, AnswerLatency
 from turning_force.nodes.force_controller import ForceControllerNode
 from turning_force.nodes.force_estimator import ForceEstimatorNode
 from turning_force.nodes.lathe_sim import LatheSimNode
 from turning_force.nodes.pmc_bridge import PmcBridgeNode
-from turning_force.nodes.convert import last_sample_ns
 from turning_force.nodes.spin import make_executor
 
 

@@ -223,8 +223,9 @@ class SessionRecorderNode(Node):
     def destroy_node(self) -> None:
         with contextlib.suppress(BagError):   # logged by close(); the node goes all the same
             self.close()
-        if getattr(self, '_jump', None) is not None:
-            self._jump.unregister()
+        jump = getattr(self, '_jump', None)   # absent when the parameters were refused
+        if jump is not None:
+            jump.unregister()
             self._jump = None
         super().destroy_node()
 

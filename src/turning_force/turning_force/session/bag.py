@@ -162,14 +162,14 @@ class SessionWriter:
         self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         self._writer.set_custom_data(CUSTOM_RECORDING, 'open: the message counts are written '
                                      'when the session closes')
-        self._connections: dict[str, object] = {}
+        self._connections: dict[str, Any] = {}
         self._flush_period_s = flush_period_s
         self._last_flush = time.monotonic()
         self.counts: dict[str, int] = {}
         self.failure: BagError | None = None
         self._closed = False
         self._queue_limit = max(int(queue_limit), 1)
-        self._pending: list[tuple[object, int, bytes]] = []
+        self._pending: list[tuple[Any, int, bytes]] = []
         self._wake = threading.Condition()   # guards the queue
         self._disk = threading.Lock()        # guards the file: one writer at a time
         self._stopping = False
@@ -314,7 +314,7 @@ class SessionWriter:
                             time.sleep(0)
                     if time.monotonic() - self._last_flush >= flush_period_s:
                         self._flush()
-            except Exception as exc:  # noqa: BLE001 (any failure stops the session, named)
+            except Exception as exc:
                 with self._disk:
                     self._failed(exc)
                 with self._wake:

@@ -4,8 +4,9 @@ One process, one executor (rclpy's EventsExecutor). ``lathe_sim`` owns ``/clock`
 advances sim time one control period and publishes a block of currents; the runner then spins
 the graph until the override answering that block (matched by stamp) has reached the simulator,
 and only then steps again. The nodes share one subscription to ``/clock`` (lathe_sim's time
-source sets every node's clock), not one each, and the recorder writes on its own thread. The graph's order of work is therefore fixed, and a run is
-deterministic for a given file and seed, and as fast as the CPU allows.
+source sets every node's clock), not one each, and the recorder writes on its own thread. The
+graph's order of work is therefore fixed, and a run is deterministic for a given file and seed,
+and as fast as the CPU allows.
 
 ``pmc_bridge`` is a lifecycle node: the runner configures and activates it once the graph
 exists, and deactivates and cleans it up at the end. A machine file whose module is on
@@ -136,10 +137,12 @@ def share_clock(source: Node, nodes: list[Node]) -> bool:
     ``use_sim_time``; their own subscriptions go. False (nothing changed) with an rclpy whose
     nodes keep their time source elsewhere."""
     shared = getattr(source, '_time_source', None)   # rclpy has no public accessor for it
-    owned = [getattr(node, '_time_source', None) for node in nodes if node is not source]
-    if shared is None or any(ts is None for ts in owned):
+    others = [node for node in nodes if node is not source]
+    owned = [getattr(node, '_time_source', None) for node in others]
+    if shared is None or None in owned:
         return False
-    for node, own in zip((n for n in nodes if n is not source), owned, strict=True):
+    for node, own in zip(others, owned, strict=True):
+        assert own is not None
         own.detach_node()   # its /clock subscription goes
         shared.attach_clock(node.get_clock())
     return True
