@@ -15,6 +15,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from turning_force_msgs.msg import FeedOverride, ServoCurrents
 
+from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import load_experiment
 from turning_force.core.overrides import get_table
 from turning_force.nodes.convert import last_sample_ns
@@ -23,7 +24,7 @@ from turning_force.nodes.force_controller import ForceControllerNode
 from turning_force.nodes.force_estimator import ForceEstimatorNode
 from turning_force.nodes.lathe_sim import LatheSimNode
 from turning_force.nodes.pmc_bridge import PmcBridgeNode
-from turning_force.nodes.spin import make_executor
+from turning_force.nodes.spin import RT_PRIORITY_ENV, make_executor, real_time_priority
 
 
 @pytest.fixture
@@ -191,3 +192,12 @@ def test_withheld_answers_are_missed_periods(context, events):
     status = reports.statuses[-1]
     assert status.level == DiagnosticStatus.WARN
     assert '5 missed periods in the last 1 s' in status.message
+
+
+@pytest.mark.parametrize('value', ['0', '100', 'high', '-5'])
+def test_a_real_time_priority_out_of_range_is_refused(monkeypatch, value):
+    monkeypatch.setenv(RT_PRIORITY_ENV, value)
+    with pytest.raises(ConfigError, match=f"{RT_PRIORITY_ENV}='{value}': expected a priority"):
+        real_time_priority()
+    monkeypatch.setenv(RT_PRIORITY_ENV, '')
+    assert real_time_priority() == ''   # not asked: nothing changes
