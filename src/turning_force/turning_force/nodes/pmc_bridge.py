@@ -74,12 +74,13 @@ from turning_force.nodes.convert import (
     cut_to_msg,
     estimate_from_msg,
     inputs_from_msg,
+    ns_to_stamp,
     tristate,
 )
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import run_nodes, timer_callback
+from turning_force.nodes.spin import NodeTime, run_nodes, timer_callback
 
 __all__ = ['BridgeStartError', 'PmcBridgeNode', 'SimulatedPmc', 'main']
 
@@ -114,6 +115,7 @@ class PmcBridgeNode(LifecycleNode):
         """``autostart``: configure and activate now (true), wait for transitions (false), or
         as the ``autostart`` parameter says (``None``)."""
         super().__init__('pmc_bridge', **kwargs)
+        self._time = NodeTime(self)   # the gate's clock, without a clock call per message
         # Set first: the context's cleanup may destroy a node whose parameters were refused.
         self.machine: Machine | None = None
         self.backend: Any = None        # SimulatedPmc or ModbusPmc once configured
@@ -178,6 +180,9 @@ class PmcBridgeNode(LifecycleNode):
         try:
             self.stop()
         finally:
+            node_time = getattr(self, '_time', None)   # absent when parameters were refused
+            if node_time is not None:
+                node_time.close()
             super().destroy_node()
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -363,7 +368,7 @@ class PmcBridgeNode(LifecycleNode):
     # --- callbacks ---------------------------------------------------------------------------
 
     def _now_s(self) -> float:
-        now = self.get_clock().now().nanoseconds * 1e-9
+        now = self._time.ns() * 1e-9
         if not self.gate.started and self._active:
             self.gate.start(now)
         return now
@@ -479,7 +484,7 @@ class PmcBridgeNode(LifecycleNode):
         if answers is not None:
             msg.header = answers.header   # answers this block (lock-step matches on it)
         else:
-            msg.header = Header(stamp=self.get_clock().now().to_msg())
+            msg.header = Header(stamp=ns_to_stamp(self._time.ns()))
         self._publisher.publish(msg)
         self.diagnostics.published('pmc/feed_override')
         if written.reason != self._last_reason:

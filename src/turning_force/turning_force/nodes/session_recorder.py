@@ -7,12 +7,12 @@ Subscribes, without deserialising, to every topic of the graph (``servo/currents
 and writes them to
 ``output_dir`` as they come, stamped with this node's clock at receipt (sim time in lock-step:
 read once per step of ``/clock``, not per message; else the system clock, which the ROS clock
-is without sim time). A writer thread does the disk work (the MCAP records, the zstd chunk,
-the flush with fsync), so that the executor that runs the recorder (with the control graph, in
-one process) never waits for the disk (``background=False`` writes on the executor's thread, as
-it once did, for comparison). Embeds the
-experiment file (``experiment_file``), the software versions, and the resolved parameters: its
-owner passes them (:meth:`SessionRecorderNode.add_custom_data`, as ``turning-force run`` does),
+is without sim time: :class:`turning_force.nodes.spin.NodeTime`). A writer thread does the
+disk work (the MCAP records, the zstd chunk, the flush with fsync), so that the executor that
+runs the recorder (with the control graph, in one process) never waits for the disk
+(``background=False`` writes on the executor's thread, as it once did, for comparison). Embeds
+the experiment file (``experiment_file``), the software versions, and the resolved parameters:
+its owner passes them (:meth:`SessionRecorderNode.add_custom_data`, as ``turning-force run`` does),
 or with ``capture_parameters`` it asks the graph's nodes for theirs over their parameter
 services, as on the machine PC. A killed recorder loses at most ``flush_period_s`` of data, and
 leaves ``metadata.yaml`` as written at the start (topics, experiment file, versions; rewritten
@@ -28,15 +28,12 @@ import contextlib
 import datetime
 import functools
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
-from rclpy.clock import JumpThreshold
-from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
@@ -57,7 +54,7 @@ from turning_force.core.experiment import SETTINGS_OF, RecorderSettings
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import run_nodes, timer_callback
+from turning_force.nodes.spin import NodeTime, run_nodes, timer_callback
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
     CUSTOM_PARAMETERS,
@@ -111,15 +108,8 @@ class SessionRecorderNode(Node):
         self.diagnostics = Diagnostics(self)
         self._closed = False
         self.failure: BagError | None = None   # why recording stopped, if a write failed
-        # The receipt time of every message: sim time is read once after each /clock step
-        # (the clock's jump callback marks it out of date), the system clock is cheap.
-        self._sim_time = bool(self.get_parameter('use_sim_time').value)
-        self._now_ns = 0
-        self._clock_moved = True
-        self._jump = (self.get_clock().create_jump_callback(
-            JumpThreshold(min_forward=Duration(nanoseconds=1),
-                          min_backward=Duration(nanoseconds=-1)),
-            pre_callback=self._on_clock_jump) if self._sim_time else None)
+        # The receipt time of every message, without a clock call per message.
+        self._time = NodeTime(self)
         self.create_timer(1.0, timer_callback(self._check_writer))
         for topic, cls in GRAPH_TOPICS.items():
             name = self.resolve_topic_name(topic)
@@ -158,20 +148,8 @@ class SessionRecorderNode(Node):
         self._captured[node] = {n: parameter_value_to_python(v)
                                 for n, v in zip(names, response.values, strict=True)}
 
-    def _on_clock_jump(self) -> None:
-        self._clock_moved = True
-
-    def _stamp_ns(self) -> int:
-        """Receipt time [ns]: this node's clock, without a clock read per message."""
-        if not self._sim_time:
-            return time.time_ns()
-        if self._clock_moved:
-            self._clock_moved = False
-            self._now_ns = self.get_clock().now().nanoseconds
-        return self._now_ns
-
     def _callback(self, name: str) -> Any:
-        write, received, stamp_ns = self.writer.write, self.diagnostics.received, self._stamp_ns
+        write, received, stamp_ns = self.writer.write, self.diagnostics.received, self._time.ns
 
         def record(data: bytes) -> None:
             if not self._closed:
@@ -223,10 +201,9 @@ class SessionRecorderNode(Node):
     def destroy_node(self) -> None:
         with contextlib.suppress(BagError):   # logged by close(); the node goes all the same
             self.close()
-        jump = getattr(self, '_jump', None)   # absent when the parameters were refused
-        if jump is not None:
-            jump.unregister()
-            self._jump = None
+        node_time = getattr(self, '_time', None)   # absent when the parameters were refused
+        if node_time is not None:
+            node_time.close()
         super().destroy_node()
 
 
