@@ -9,8 +9,8 @@ status (``answer_latency_p50_ms``, ``answer_latency_p99_ms``, ``answer_latency_m
   ``TURNING_FORCE_EXECUTOR=single``);
 - across processes: ``lathe_sim``, ``force_estimator``, ``force_controller``, ``pmc_bridge``
   and ``session_recorder`` each in its own process, as ``ros2 run`` starts them;
-- the same two under SCHED_FIFO priority 50 (``TURNING_FORCE_RT_PRIORITY``; needs
-  CAP_SYS_NICE).
+- the same two under SCHED_FIFO priority 50 (``TURNING_FORCE_RT_PRIORITY``), where this
+  machine grants it (CAP_SYS_NICE).
 
 The first ``--warmup`` seconds (discovery, the kernel loading) are left out. Printed per graph:
 the median of the windows' p50, the worst window's p99, the largest latency, the periods
@@ -121,6 +121,13 @@ def measure(label: str, executables: list[str], seconds: float, warmup_s: float,
     }
 
 
+def fifo_granted() -> bool:
+    """Whether a process here may take SCHED_FIFO (tried in a child, not in this one)."""
+    probe = 'import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))'
+    return subprocess.run([sys.executable, '-c', probe], capture_output=True,
+                          check=False).returncode == 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--seconds', type=float, default=60.0)
@@ -138,6 +145,10 @@ def main() -> int:
         'split-rt': ('five processes, SCHED_FIFO 50', list(SPLIT), 'events'),
     }
     chosen = [args.only] if args.only else list(runs)
+    if not args.only and not fifo_granted():
+        chosen = [k for k in chosen if not k.endswith('-rt')]
+        print('SCHED_FIFO not granted here (no CAP_SYS_NICE): the -rt graphs left out',
+              file=sys.stderr)
     results = []
     for key in chosen:
         label, executables, executor = runs[key]
