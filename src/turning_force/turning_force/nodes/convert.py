@@ -1,10 +1,18 @@
-"""Message <-> core conversion, in one place (the core never sees a message or a ``Time``)."""
+"""Message <-> core conversion, in one place (the core never sees a message or a ``Time``).
+
+The ``*_to_msg`` functions fill a message given to them (``out``), so that a node publishing
+once per control period reuses one message object instead of building one (and its header and
+stamp) each time: rclpy serialises a message when it is published, so the next period may
+overwrite it.
+"""
 
 from __future__ import annotations
 
+import array
 import math
 
 import numpy as np
+import numpy.typing as npt
 from builtin_interfaces.msg import Time as TimeMsg
 from turning_force_msgs.msg import CutRecord as CutRecordMsg
 from turning_force_msgs.msg import ForceEstimate as ForceEstimateMsg
@@ -26,10 +34,13 @@ __all__ = [
     'ns_to_stamp',
     'seconds_to_stamp',
     'servo_currents_to_block',
+    'set_stamp',
     'stamp_to_ns',
     'stamp_to_seconds',
     'tristate',
 ]
+
+FloatArray = npt.NDArray[np.float64]
 
 
 def stamp_to_seconds(stamp: TimeMsg) -> float:
@@ -46,6 +57,17 @@ def stamp_to_ns(stamp: TimeMsg) -> int:
 
 def ns_to_stamp(nanoseconds: int) -> TimeMsg:
     return TimeMsg(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+
+
+def set_stamp(stamp: TimeMsg, nanoseconds: int) -> None:
+    """Set ``stamp`` in place to ``nanoseconds`` (no new message)."""
+    stamp.sec, stamp.nanosec = divmod(nanoseconds, 1_000_000_000)
+
+
+def _doubles(values: FloatArray) -> array.array[float]:
+    """A float64 array as the messages hold it (array.array 'd'), copied as bytes, not
+    element by element."""
+    return array.array('d', np.ascontiguousarray(values, dtype=np.float64).tobytes())
 
 
 def last_sample_ns(msg: ServoCurrents) -> int:
@@ -67,21 +89,23 @@ def servo_currents_to_block(msg: ServoCurrents) -> CurrentBlock:
     )
 
 
-def block_to_servo_currents(block: CurrentBlock, frame_id: str = '') -> ServoCurrents:
-    msg = ServoCurrents()
-    msg.header.stamp = seconds_to_stamp(block.t0_s)
+def block_to_servo_currents(block: CurrentBlock, frame_id: str = '',
+                            out: ServoCurrents | None = None) -> ServoCurrents:
+    msg = ServoCurrents() if out is None else out
+    set_stamp(msg.header.stamp, round(block.t0_s * 1e9))
     msg.header.frame_id = frame_id
-    msg.sample_period_s = block.sample_period_s
-    msg.phase_u_a = block.phase_u_a
-    msg.phase_v_a = block.phase_v_a
-    msg.rotor_angle_rad = block.rotor_angle_rad
-    msg.feed_rate_mm_min = block.feed_rate_mm_min
+    msg.sample_period_s = float(block.sample_period_s)
+    msg.phase_u_a = _doubles(block.phase_u_a)
+    msg.phase_v_a = _doubles(block.phase_v_a)
+    msg.rotor_angle_rad = _doubles(block.rotor_angle_rad)
+    msg.feed_rate_mm_min = _doubles(block.feed_rate_mm_min)
     return msg
 
 
-def estimate_to_msg(estimate: ForceEstimate) -> ForceEstimateMsg:
-    msg = ForceEstimateMsg()
-    msg.header.stamp = seconds_to_stamp(estimate.t_s)
+def estimate_to_msg(estimate: ForceEstimate,
+                    out: ForceEstimateMsg | None = None) -> ForceEstimateMsg:
+    msg = ForceEstimateMsg() if out is None else out
+    set_stamp(msg.header.stamp, round(estimate.t_s * 1e9))
     msg.force_n = estimate.force_n
     msg.force_rate_n_s = estimate.force_rate_n_s
     msg.current_q_a = estimate.current_q_a
@@ -110,11 +134,13 @@ def from_tristate(value: int) -> bool | None:
     return None if value < 0 else bool(value)
 
 
-def inputs_to_msg(inputs: InputValues) -> MachineInputs:
+def inputs_to_msg(inputs: InputValues, out: MachineInputs | None = None) -> MachineInputs:
     dial = inputs.operator_dial_pct
-    return MachineInputs(program_enable=tristate(inputs.program_enable),
-                         threading=tristate(inputs.threading),
-                         operator_dial_pct=math.nan if dial is None else float(dial))
+    msg = MachineInputs() if out is None else out
+    msg.program_enable = tristate(inputs.program_enable)
+    msg.threading = tristate(inputs.threading)
+    msg.operator_dial_pct = math.nan if dial is None else float(dial)
+    return msg
 
 
 def inputs_from_msg(msg: MachineInputs) -> InputValues:

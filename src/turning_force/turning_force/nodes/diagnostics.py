@@ -1,13 +1,24 @@
-"""``/diagnostics`` for every node: message rates, staleness and errors, once a second."""
+"""``/diagnostics`` for every node: message rates, staleness and errors, once a second; and
+:class:`AnswerLatency`, the real-time loop's block-to-override latency."""
 
 from __future__ import annotations
 
+import math
+from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 
-__all__ = ['Diagnostics']
+from turning_force.nodes.spin import timer_callback
+
+__all__ = ['LATENCY_KEYS', 'AnswerLatency', 'Diagnostics']
+
+# The keys :class:`AnswerLatency` reports on /diagnostics (lathe_sim's status).
+LATENCY_KEYS = ('answer_latency_p50_ms', 'answer_latency_p99_ms', 'answer_latency_max_ms',
+                'answered_blocks', 'missed_periods', 'missed_periods_total', 'latency_window_s')
 
 
 @dataclass
@@ -40,7 +51,12 @@ class Diagnostics:
         self._error_texts: list[str] = []
         self._values: dict[str, str] = {}
         self._last_report_s: float | None = None  # the clock may not run yet (lock-step)
-        self._timer = node.create_timer(period_s, self.report)
+        self._providers: list[Callable[[], dict[str, str]]] = []
+        self._timer = node.create_timer(period_s, timer_callback(self.report))
+
+    def add_provider(self, values: Callable[[], dict[str, str]]) -> None:
+        """``values()`` is asked for key/value pairs at each report (it may :meth:`warn`)."""
+        self._providers.append(values)
 
     def _now(self) -> float:
         return self._node.get_clock().now().nanoseconds * 1e-9
@@ -95,6 +111,8 @@ class Diagnostics:
         return entry.last_s is None or now - entry.last_s > entry.stale_after_s
 
     def report(self) -> None:
+        for provider in self._providers:
+            self._values.update(provider())
         now = self._now()
         if self._last_report_s is None:
             self._last_report_s = now - self._period_s
@@ -127,3 +145,72 @@ class Diagnostics:
         self._error_texts.clear()
         self._warnings.clear()
         self._last_report_s = now
+
+
+class AnswerLatency:
+    """Block published -> the override answering it arrived, per block, over a sliding window.
+
+    The simulator (or a DAQ driver) calls :meth:`published` with the block's answer stamp (its
+    last sample's time, which the estimate, command and override answering it carry) just
+    before the block goes out, and :meth:`answered` when a ``FeedOverride`` arrives: both ends
+    are seen by one node, on one monotonic clock. A block whose answer has not come when the
+    next block goes out is a missed period; its answer, if it comes later, still counts in the
+    latencies. The window is the last ``window_blocks`` blocks whose period is over (the one
+    going on is judged when the next goes out). Blocks before the first answer (the graph
+    starting, discovery) are not counted. Costs a dictionary update per block; the
+    percentiles are taken once per report.
+    """
+
+    # Blocks whose answer may still come late (beyond that: lost).
+    LATE_BLOCKS = 8
+
+    def __init__(self, window_blocks: int, period_s: float) -> None:
+        self.period_s = period_s
+        self.window_blocks = max(int(window_blocks), 1)
+        # Per block: [latency ns or -1 while unanswered, missed]; the last is the current one.
+        self._window: deque[list[int]] = deque(maxlen=self.window_blocks + 1)
+        self._sent: dict[int, tuple[int, list[int]]] = {}   # stamp -> (published at, entry)
+        self._started = False
+        self.missed_total = 0
+        self.answered_total = 0
+
+    def published(self, stamp_ns: int, now_ns: int) -> None:
+        """Block ``stamp_ns`` goes out at ``now_ns`` (monotonic)."""
+        if not self._started:
+            self._window.clear()
+        elif self._window[-1][0] < 0:   # the block before had no answer in its period
+            self._window[-1][1] = 1
+            self.missed_total += 1
+        entry = [-1, 0]
+        self._window.append(entry)
+        sent = self._sent
+        sent[stamp_ns] = (now_ns, entry)
+        if len(sent) > self.LATE_BLOCKS:
+            del sent[next(iter(sent))]   # the oldest (dicts keep insertion order)
+
+    def answered(self, stamp_ns: int, now_ns: int) -> bool:
+        """An override stamped ``stamp_ns`` arrived at ``now_ns``; whether it answers a block."""
+        found = self._sent.pop(stamp_ns, None)
+        if found is None:
+            return False
+        sent_ns, entry = found
+        self._started = True
+        entry[0] = now_ns - sent_ns
+        self.answered_total += 1
+        return True
+
+    def values(self) -> dict[str, str]:
+        """The window's statistics, as /diagnostics values ([ms], 3 decimals: microseconds)."""
+        done = list(self._window)[:-1]   # blocks whose period is over
+        latencies = np.array([e[0] for e in done if e[0] >= 0], dtype=np.float64) * 1e-6
+        if latencies.size:
+            p50, p99 = np.percentile(latencies, (50.0, 99.0))
+            peak = float(latencies.max())
+        else:
+            p50 = p99 = peak = math.nan
+        return {'answer_latency_p50_ms': f'{p50:.3f}', 'answer_latency_p99_ms': f'{p99:.3f}',
+                'answer_latency_max_ms': f'{peak:.3f}',
+                'answered_blocks': str(latencies.size),
+                'missed_periods': str(sum(e[1] for e in done)),
+                'missed_periods_total': str(self.missed_total),
+                'latency_window_s': f'{self.window_blocks * self.period_s:g}'}

@@ -49,6 +49,7 @@ class ForceControllerNode(Node):
         self.diagnostics.set_value('controller', settings.controller)
         self._reachable = True
         self._publisher = self.create_publisher(FeedCommand, 'control/feed_command', 10)
+        self._command = FeedCommand()   # refilled per estimate (rclpy serialises on publish)
         self.create_subscription(ForceEstimate, 'force/estimate', self._on_estimate, 10)
         self.create_subscription(Float64, 'force/reference', self._on_reference, REFERENCE_QOS)
 
@@ -79,12 +80,14 @@ class ForceControllerNode(Node):
         if out is None:
             self.diagnostics.warn(f'force/estimate status {msg.status}: {msg.detail}')
             return
-        command = FeedCommand(
-            override_pct=out.override_pct, tracking_error_n=out.error_n,
-            sliding_variable=out.sliding_variable, reference_reachable=out.reachable,
-            reference_force_n=self._controller.settings.reference_force_n,
-            controller=self._controller.name)
-        command.header = msg.header
+        command = self._command
+        command.override_pct = float(out.override_pct)
+        command.tracking_error_n = float(out.error_n)
+        command.sliding_variable = float(out.sliding_variable)
+        command.reference_reachable = bool(out.reachable)
+        command.reference_force_n = float(self._controller.settings.reference_force_n)
+        command.controller = self._controller.name
+        command.header = msg.header   # the estimate's, received anew each time
         self._publisher.publish(command)
         self.diagnostics.published('control/feed_command')
         if out.reachable != self._reachable:

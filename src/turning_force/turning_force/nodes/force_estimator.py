@@ -24,12 +24,12 @@ from turning_force.core.loop import make_chain_estimator, upgrade_estimator
 from turning_force.nodes.convert import (
     estimate_to_msg,
     last_sample_ns,
-    ns_to_stamp,
     servo_currents_to_block,
+    set_stamp,
 )
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import run_nodes
+from turning_force.nodes.spin import run_nodes, timer_callback
 
 __all__ = ['ForceEstimatorNode', 'main']
 
@@ -46,10 +46,11 @@ class ForceEstimatorNode(Node):
         self.diagnostics = Diagnostics(self)
         self._estimator = self._make_estimator(self.parameters.current)
         self._publisher = self.create_publisher(ForceEstimate, 'force/estimate', 10)
+        self._out = ForceEstimate()   # refilled per block (rclpy serialises on publish)
         self.create_subscription(ServoCurrents, 'servo/currents', self._on_currents, 10)
         self._watching = False
         self._logged_scale = 1.0
-        self.create_timer(STALE_CHECK_S, self._check_stale)
+        self.create_timer(STALE_CHECK_S, timer_callback(self._check_stale))
 
     def _make_estimator(self, settings: EstimatorSettings) -> ForceEstimator:
         """The estimator on the compiled kernel where it covers the settings (in Python
@@ -99,11 +100,11 @@ class ForceEstimatorNode(Node):
             self.get_logger().info(f'friction re-zeroed in air: {scale:.3f} x calibrated')
             self._logged_scale = scale
         self.diagnostics.set_value('friction_scale', scale)
-        out = estimate_to_msg(estimate)
+        out = estimate_to_msg(estimate, self._out)
         out.header.frame_id = msg.header.frame_id
         # Stamped as the block it answers, valid or not: downstream (the bridge, lock-step
         # runs, the session reader) pairs answers with blocks by this stamp.
-        out.header.stamp = ns_to_stamp(last_sample_ns(msg))
+        set_stamp(out.header.stamp, last_sample_ns(msg))
         self._publisher.publish(out)
         self.diagnostics.published('force/estimate')
 

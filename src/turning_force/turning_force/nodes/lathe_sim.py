@@ -16,11 +16,22 @@ simulation). Parameters:
 the topic but read, each step, from the coils of the Modbus/TCP server that stands in for the
 PMC's input image, and decoded with the machine file, as the PMC would: the loop closes
 through the real protocol.
+
+On the wall clock (not lock-step) it measures, per block, the time from the block's currents
+going out to the ``pmc/feed_override`` answering it (stamped as the block) coming back: both
+ends are seen here, on one monotonic clock, so the figure is the whole loop as the PMC would
+see it (DDS both ways, estimator, controller, bridge, and whatever shares their executors).
+``/diagnostics`` carries it over the last ``latency_window_s``: ``answer_latency_p50_ms``,
+``answer_latency_p99_ms``, ``answer_latency_max_ms``, ``answered_blocks``, ``missed_periods``
+(blocks whose answer had not come when the next block went out) and ``missed_periods_total``
+since the first answer (:class:`turning_force.nodes.diagnostics.AnswerLatency`); the status is
+WARN while the window holds a missed period.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -39,13 +50,12 @@ from turning_force.core.plant import Dynamometer, LathePlant, PlantBlock, PlantS
 from turning_force.nodes.convert import (
     block_to_servo_currents,
     inputs_to_msg,
-    last_sample_ns,
-    ns_to_stamp,
+    set_stamp,
     stamp_to_ns,
 )
-from turning_force.nodes.diagnostics import Diagnostics
+from turning_force.nodes.diagnostics import AnswerLatency, Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import run_nodes
+from turning_force.nodes.spin import run_nodes, timer_callback
 
 __all__ = ['LatheSimNode', 'main']
 
@@ -57,10 +67,19 @@ class LatheSimNode(Node):
     does, after the graph has answered the previous block.
     """
 
+    FRAME = 'z_axis'
+
     def __init__(self, *, lockstep: bool = False, **kwargs: Any) -> None:
         super().__init__('lathe_sim', **kwargs)
         self.declare_parameter('publish_clock', False)
         self._publish_clock = bool(self.get_parameter('publish_clock').value)
+        self.declare_parameter('latency_window_s', 10.0, ParameterDescriptor(
+            name='latency_window_s', read_only=True, description='Sliding window of the '
+            'block-to-override latency statistics on /diagnostics [s] (wall clock only)'))
+        window_s = float(self.get_parameter('latency_window_s').value)
+        if not window_s > 0:
+            raise ConfigError(f'{self.get_fully_qualified_name()}: latency_window_s = '
+                              f'{window_s!r}: expected a duration > 0 s')
         self.parameters = SettingsParameters(self, PlantSettings)
         settings = self.parameters.current
         self._table = get_table(settings.override_table)
@@ -71,8 +90,23 @@ class LatheSimNode(Node):
         self._t0_ns = 0 if lockstep else self.get_clock().now().nanoseconds
         self.last_override_stamp_ns = -1
         self._awaited: tuple[int, Future[int]] | None = None
-        self._last_message = ServoCurrents()
+        self._last_ns = -1   # the answer stamp of the last block published
+        # One message of each kind, refilled every period (rclpy serialises on publish).
+        self._clock_msg = Clock()
+        self._inputs_msg = MachineInputs()
+        self._currents_msg = ServoCurrents()
+        self._joint_msg = JointState(name=['z'])
+        self._truth_msg = CuttingState()
+        self._measured_msg = WrenchStamped()
+        for message in (self._currents_msg, self._joint_msg, self._truth_msg,
+                        self._measured_msg):
+            message.header.frame_id = self.FRAME
         self.diagnostics = Diagnostics(self)
+        self.latency: AnswerLatency | None = None
+        if not lockstep:   # lock-step has no wall-clock period to keep
+            self.latency = AnswerLatency(round(window_s / settings.control_period_s),
+                                         settings.control_period_s)
+            self.diagnostics.add_provider(self._latency_values)
         self.diagnostics.watch('pmc/feed_override', stale_after_s=5 * settings.control_period_s)
         self.diagnostics.set_value('override_from', 'pmc/feed_override' if self._coils is None
                                    else f'coils of modbus_tcp {self._coils.where}')
@@ -88,7 +122,7 @@ class LatheSimNode(Node):
                           if settings.dynamometer else None)
         self.create_subscription(FeedOverride, 'pmc/feed_override', self._on_override, 10)
         if not lockstep:
-            self.create_timer(settings.control_period_s, self._tick)
+            self.create_timer(settings.control_period_s, timer_callback(self._tick))
 
     def _coil_reader(self, override_table: str) -> Any:
         """The PMC's input image on Modbus/TCP, when ``backend`` is ``modbus_tcp``."""
@@ -123,11 +157,21 @@ class LatheSimNode(Node):
             coils.close()
         super().destroy_node()
 
+    def _latency_values(self) -> dict[str, str]:
+        assert self.latency is not None
+        values = self.latency.values()
+        if values['missed_periods'] != '0':
+            self.diagnostics.warn(f'{values["missed_periods"]} missed periods in the last '
+                                  f'{values["latency_window_s"]} s: the graph does not keep up')
+        return values
+
     def _on_override(self, msg: FeedOverride) -> None:
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        if self.latency is not None:
+            self.latency.answered(stamp_ns, time.perf_counter_ns())
         self.diagnostics.received('pmc/feed_override')
         if self._coils is None:   # else the PMC reads its coils at the next step
             self._take_override(msg)
-        stamp_ns = stamp_to_ns(msg.header.stamp)
         self.last_override_stamp_ns = stamp_ns
         if self._awaited is not None and self._awaited[0] == stamp_ns:
             self._awaited[1].set_result(stamp_ns)
@@ -146,14 +190,18 @@ class LatheSimNode(Node):
         """A future done when the override answering ``block`` (stamped with its last sample's
         time, as the estimate, command and override that answer it are) has arrived."""
         future: Future[int] = Future()
-        self._awaited = (last_sample_ns(self._last_message), future)
+        self._awaited = (self._last_ns, future)
         return future
 
     def _tick(self) -> None:
         self.step()
 
     def step(self) -> PlantBlock:
-        """Advance one control period at the applied override and publish what it gives."""
+        """Advance one control period at the applied override and publish what it gives.
+
+        The block's currents go out last, once everything else about the block is out: the
+        bridge has the machine's inputs before it answers, and the loop's latency is measured
+        from the currents on."""
         if self._coils is not None:
             try:
                 self._applied_pct = self._coils.read_pct()
@@ -161,39 +209,46 @@ class LatheSimNode(Node):
                 self.diagnostics.error(str(exc))
         block = self._plant.step(self._applied_pct)
         currents = block.currents
-        frame = 'z_axis'
-        message = block_to_servo_currents(currents, frame)
-        message.header.stamp = ns_to_stamp(self._t0_ns + round(currents.t0_s * 1e9))
-        last_ns = last_sample_ns(message)
+        message = block_to_servo_currents(currents, self.FRAME, self._currents_msg)
+        first_ns = self._t0_ns + round(currents.t0_s * 1e9)
+        set_stamp(message.header.stamp, first_ns)
+        period_ns = round(currents.sample_period_s * 1e9)
+        # The last sample's time: the stamp of everything that answers the block (as
+        # convert.last_sample_ns computes it from the message).
+        last_ns = first_ns + round((len(currents) - 1) * float(currents.sample_period_s) * 1e9)
         if self._clock_publisher is not None:  # the block is complete one sample later
-            end_ns = last_ns + round(currents.sample_period_s * 1e9)
-            self._clock_publisher.publish(Clock(clock=ns_to_stamp(end_ns)))
-        inputs = inputs_to_msg(block.inputs)   # before the currents: the bridge's answer to
-        inputs.header.stamp = ns_to_stamp(last_ns)   # this block must have seen them
+            set_stamp(self._clock_msg.clock, last_ns + period_ns)
+            self._clock_publisher.publish(self._clock_msg)
+        inputs = inputs_to_msg(block.inputs, self._inputs_msg)   # before the currents: the
+        set_stamp(inputs.header.stamp, last_ns)   # bridge's answer to this block must see them
         self._inputs.publish(inputs)
-        self._currents.publish(message)
-        self._last_message = message
-        last = ns_to_stamp(last_ns)
-        joint = JointState(name=['z'], position=[self._plant.position_mm / 1000.0],
-                           velocity=[float(currents.feed_rate_mm_min[-1]) / 60000.0],
-                           effort=[float(block.force_n[-1])])
-        joint.header.stamp, joint.header.frame_id = last, frame
+        joint = self._joint_msg
+        set_stamp(joint.header.stamp, last_ns)
+        joint.position = [self._plant.position_mm / 1000.0]
+        joint.velocity = [float(currents.feed_rate_mm_min[-1]) / 60000.0]
+        joint.effort = [float(block.force_n[-1])]
         self._joint.publish(joint)
         s = self._plant.settings
-        truth = CuttingState(
-            force_n=float(block.force_n[-1]), depth_of_cut_mm=float(block.depth_mm[-1]),
-            spindle_speed_rpm=s.spindle_speed_rpm, feed_mm_rev=float(block.feed_mm_rev[-1]),
-            feed_rate_mm_min=float(currents.feed_rate_mm_min[-1]),
-            specific_cutting_force_n_mm2=s.specific_cutting_force_n_mm2,
-            override_pct=block.override_pct)
-        truth.header.stamp, truth.header.frame_id = last, frame
+        truth = self._truth_msg
+        set_stamp(truth.header.stamp, last_ns)
+        truth.force_n = float(block.force_n[-1])
+        truth.depth_of_cut_mm = float(block.depth_mm[-1])
+        truth.spindle_speed_rpm = float(s.spindle_speed_rpm)
+        truth.feed_mm_rev = float(block.feed_mm_rev[-1])
+        truth.feed_rate_mm_min = float(currents.feed_rate_mm_min[-1])
+        truth.specific_cutting_force_n_mm2 = float(s.specific_cutting_force_n_mm2)
+        truth.override_pct = float(block.override_pct)
         self._truth.publish(truth)
         if self._dynamometer is not None and self._measured is not None:
-            measured = WrenchStamped()
-            measured.header.stamp, measured.header.frame_id = last, frame
+            measured = self._measured_msg
+            set_stamp(measured.header.stamp, last_ns)
             measured.wrench.force.z = self._dynamometer.read_n(block.force_n)
             self._measured.publish(measured)
             self.diagnostics.published('force/measured')
+        self._last_ns = last_ns
+        if self.latency is not None:
+            self.latency.published(last_ns, time.perf_counter_ns())
+        self._currents.publish(message)
         for topic in ('machine/inputs', 'servo/currents', 'servo/joint_state',
                       'sim/cutting_state'):
             self.diagnostics.published(topic)

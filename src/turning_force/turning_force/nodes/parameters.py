@@ -31,7 +31,7 @@ __all__ = ['NODE_PARAMETERS', 'SettingsParameters', 'check_overrides', 'descript
 # Parameters the nodes declare besides their settings classes' fields, and ROS's own.
 NODE_PARAMETERS = frozenset({
     'publish_clock', 'output_dir', 'experiment_file', 'flush_period_s',   # ours
-    'capture_parameters', 'autostart',
+    'capture_parameters', 'autostart', 'latency_window_s',
     'use_sim_time', 'start_type_description_service',                     # rclpy's
 })
 

@@ -48,7 +48,7 @@ from typing import Any
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Header
 from std_srvs.srv import Trigger
 from turning_force_msgs.msg import (
     CutRecord,
@@ -74,12 +74,13 @@ from turning_force.nodes.convert import (
     cut_to_msg,
     estimate_from_msg,
     inputs_from_msg,
+    ns_to_stamp,
     tristate,
 )
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import run_nodes
+from turning_force.nodes.spin import NodeTime, run_nodes, timer_callback
 
 __all__ = ['BridgeStartError', 'PmcBridgeNode', 'SimulatedPmc', 'main']
 
@@ -114,6 +115,7 @@ class PmcBridgeNode(LifecycleNode):
         """``autostart``: configure and activate now (true), wait for transitions (false), or
         as the ``autostart`` parameter says (``None``)."""
         super().__init__('pmc_bridge', **kwargs)
+        self._time = NodeTime(self)   # the gate's clock, without a clock call per message
         # Set first: the context's cleanup may destroy a node whose parameters were refused.
         self.machine: Machine | None = None
         self.backend: Any = None        # SimulatedPmc or ModbusPmc once configured
@@ -139,6 +141,7 @@ class PmcBridgeNode(LifecycleNode):
         self.diagnostics.watch('control/feed_command', stale_after_s=settings.watchdog_period_s)
         self.diagnostics.set_value('state', 'unconfigured')
         self._publisher = self.create_publisher(FeedOverride, 'pmc/feed_override', 10)
+        self._override = FeedOverride()   # refilled per write (rclpy serialises on publish)
         self._cut_publisher = self.create_publisher(CutRecord, 'pmc/cuts', 10)
         self._reference_publisher = self.create_publisher(Float64, 'force/reference',
                                                           REFERENCE_QOS)
@@ -147,7 +150,7 @@ class PmcBridgeNode(LifecycleNode):
         self.create_subscription(ForceEstimate, 'force/estimate', self._on_estimate, 10)
         self.create_service(Trigger, '~/arm', self._on_arm)
         self.create_service(Trigger, '~/disarm', self._on_disarm)
-        self.create_timer(settings.control_period_s, self._on_timer)
+        self.create_timer(settings.control_period_s, timer_callback(self._on_timer))
         if self.get_parameter('autostart').value if autostart is None else autostart:
             self.start()
 
@@ -177,6 +180,9 @@ class PmcBridgeNode(LifecycleNode):
         try:
             self.stop()
         finally:
+            node_time = getattr(self, '_time', None)   # absent when parameters were refused
+            if node_time is not None:
+                node_time.close()
             super().destroy_node()
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -362,7 +368,7 @@ class PmcBridgeNode(LifecycleNode):
     # --- callbacks ---------------------------------------------------------------------------
 
     def _now_s(self) -> float:
-        now = self.get_clock().now().nanoseconds * 1e-9
+        now = self._time.ns() * 1e-9
         if not self.gate.started and self._active:
             self.gate.start(now)
         return now
@@ -459,19 +465,26 @@ class PmcBridgeNode(LifecycleNode):
         if answers is None and not always and outcome == self._last_published:
             return
         self._last_published = outcome
-        msg = FeedOverride(
-            applied_pct=written.applied_pct, requested_pct=written.requested_pct,
-            pmc_code=written.code, pmc_bits=list(written.bits),
-            table=self.table.name, armed=written.armed, reason=int(written.reason),
-            detail=written.detail, program_enable=tristate(written.inputs.program_enable),
-            threading=tristate(written.inputs.threading),
-            operator_dial_pct=(float('nan') if written.inputs.operator_dial_pct is None
-                               else float(written.inputs.operator_dial_pct)),
-            engaged=written.engaged, alarm=written.alarm, stop_request=written.stop_request)
+        msg = self._override
+        msg.applied_pct = written.applied_pct
+        msg.requested_pct = written.requested_pct
+        msg.pmc_code = written.code
+        msg.pmc_bits = list(written.bits)
+        msg.table = self.table.name
+        msg.armed = written.armed
+        msg.reason = int(written.reason)
+        msg.detail = written.detail
+        msg.program_enable = tristate(written.inputs.program_enable)
+        msg.threading = tristate(written.inputs.threading)
+        msg.operator_dial_pct = (float('nan') if written.inputs.operator_dial_pct is None
+                                 else float(written.inputs.operator_dial_pct))
+        msg.engaged = written.engaged
+        msg.alarm = written.alarm
+        msg.stop_request = written.stop_request
         if answers is not None:
             msg.header = answers.header   # answers this block (lock-step matches on it)
         else:
-            msg.header.stamp = self.get_clock().now().to_msg()
+            msg.header = Header(stamp=ns_to_stamp(self._time.ns()))
         self._publisher.publish(msg)
         self.diagnostics.published('pmc/feed_override')
         if written.reason != self._last_reason:

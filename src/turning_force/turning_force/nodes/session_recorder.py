@@ -5,9 +5,14 @@ Subscribes, without deserialising, to every topic of the graph (``servo/currents
 ``control/feed_command``, ``pmc/feed_override``, ``machine/inputs``, ``pmc/cuts``,
 ``/diagnostics``, and a dynamometer's ``force/measured`` where one is fitted for calibration)
 and writes them to
-``output_dir`` as they come, stamped with this node's clock (sim time in lock-step). Embeds the
-experiment file (``experiment_file``), the software versions, and the resolved parameters: its
-owner passes them (:meth:`SessionRecorderNode.add_custom_data`, as ``turning-force run`` does),
+``output_dir`` as they come, stamped with this node's clock at receipt (sim time in lock-step:
+read once per step of ``/clock``, not per message; else the system clock, which the ROS clock
+is without sim time: :class:`turning_force.nodes.spin.NodeTime`). A writer thread does the
+disk work (the MCAP records, the zstd chunk, the flush with fsync), so that the executor that
+runs the recorder (with the control graph, in one process) never waits for the disk
+(``background=False`` writes on the executor's thread, as it once did, for comparison). Embeds
+the experiment file (``experiment_file``), the software versions, and the resolved parameters:
+its owner passes them (:meth:`SessionRecorderNode.add_custom_data`, as ``turning-force run`` does),
 or with ``capture_parameters`` it asks the graph's nodes for theirs over their parameter
 services, as on the machine PC. A killed recorder loses at most ``flush_period_s`` of data, and
 leaves ``metadata.yaml`` as written at the start (topics, experiment file, versions; rewritten
@@ -49,7 +54,7 @@ from turning_force.core.experiment import SETTINGS_OF, RecorderSettings
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import run_nodes
+from turning_force.nodes.spin import NodeTime, run_nodes, timer_callback
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
     CUSTOM_PARAMETERS,
@@ -83,15 +88,19 @@ def msgtype(cls: type) -> str:
 
 
 class SessionRecorderNode(Node):
-    """The graph's topics to one rosbag2 MCAP folder."""
+    """The graph's topics to one rosbag2 MCAP folder.
 
-    def __init__(self, **kwargs: Any) -> None:
+    ``background``: the disk work on a writer thread (true), or on the executor's thread.
+    """
+
+    def __init__(self, *, background: bool = True, **kwargs: Any) -> None:
         super().__init__('session_recorder', **kwargs)
         stamp = datetime.datetime.now().strftime('%Y%m%d_%H%M%S')
         # Declared from the core's RecorderSettings: ranges checked, a mistyped key refused.
         self.parameters = SettingsParameters(self, RecorderSettings)
         path = Path(self.get_parameter('output_dir').value or f'bags/session_{stamp}')
-        self.writer = SessionWriter(path, float(self.get_parameter('flush_period_s').value))
+        self.writer = SessionWriter(path, float(self.get_parameter('flush_period_s').value),
+                                    background=background)
         self.writer.set_custom_data(CUSTOM_VERSIONS, dumps(software_versions()))
         experiment = str(self.get_parameter('experiment_file').value)
         if experiment:
@@ -99,6 +108,9 @@ class SessionRecorderNode(Node):
         self.diagnostics = Diagnostics(self)
         self._closed = False
         self.failure: BagError | None = None   # why recording stopped, if a write failed
+        # The receipt time of every message, without a clock call per message.
+        self._time = NodeTime(self)
+        self.create_timer(1.0, timer_callback(self._check_writer))
         for topic, cls in GRAPH_TOPICS.items():
             name = self.resolve_topic_name(topic)
             self.writer.add_topic(name, msgtype(cls))
@@ -137,15 +149,25 @@ class SessionRecorderNode(Node):
                                 for n, v in zip(names, response.values, strict=True)}
 
     def _callback(self, name: str) -> Any:
+        write, received, stamp_ns = self.writer.write, self.diagnostics.received, self._time.ns
+
         def record(data: bytes) -> None:
             if not self._closed:
                 try:
-                    self.writer.write(name, self.get_clock().now().nanoseconds, data)
+                    write(name, stamp_ns(), data)
                 except BagError as exc:
                     self._failed(exc)
                     return
-                self.diagnostics.received(name)
+                received(name)
         return record
+
+    def _check_writer(self) -> None:
+        """A failure of the writer thread said within a second, messages coming or not; the
+        queue's depth on /diagnostics."""
+        if self.writer.failure is not None and not self._closed:
+            self._failed(self.writer.failure)
+        if self.writer.background:
+            self.diagnostics.set_value('queue_high_water', self.writer.queue_high_water)
 
     def _failed(self, exc: BagError) -> None:
         """Stop recording for good; say it once in the log and on /diagnostics for as long as
@@ -179,6 +201,9 @@ class SessionRecorderNode(Node):
     def destroy_node(self) -> None:
         with contextlib.suppress(BagError):   # logged by close(); the node goes all the same
             self.close()
+        node_time = getattr(self, '_time', None)   # absent when the parameters were refused
+        if node_time is not None:
+            node_time.close()
         super().destroy_node()
 
 

@@ -22,6 +22,7 @@ import contextlib
 import json
 import os
 import platform
+import threading
 import time
 import zlib
 from collections import defaultdict
@@ -228,9 +229,25 @@ class SessionWriter:
     killed process loses at most ``flush_period_s`` of data, the open chunk is also closed and
     the file flushed once that much wall time has passed since the last flush.
     ``metadata.yaml`` is there from the start (see the module docstring).
+
+    With ``background``, :meth:`write` only queues the message: a writer thread does the disk
+    work (MCAP records, the zstd chunk, the flush with fsync), so that a recorder on a control
+    graph's executor never waits for the disk. The queue holds at most ``queue_limit``
+    messages; a write to a full queue waits for the thread (nothing is dropped). A write that
+    fails on the thread stops it; the :class:`BagError` is :attr:`failure`, and the next
+    :meth:`write`, :meth:`flush` or :meth:`close` raises it. :meth:`close` writes what is
+    queued first.
     """
 
-    def __init__(self, path: Path, flush_period_s: float = 1.0) -> None:
+    # How long the writer thread lets messages gather before it writes them [s]: batches keep
+    # its share of the interpreter lock in few, short turns.
+    BATCH_PERIOD_S = 0.02
+    # Messages the thread writes between two turns it gives back to the interpreter lock, so
+    # that a control callback waiting for it is not held up by a whole batch.
+    YIELD_EVERY = 16
+
+    def __init__(self, path: Path, flush_period_s: float = 1.0, background: bool = False,
+                 queue_limit: int = 20_000) -> None:
         if path.exists():
             raise BagError(f'{path}: exists already; a session is never overwritten')
         self._typestore = typestore()  # before anything is created on disk
@@ -241,21 +258,38 @@ class SessionWriter:
         self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         self._writer.set_custom_data(CUSTOM_RECORDING, 'open: the message counts are written '
                                      'when the session closes')
-        self._connections: dict[str, object] = {}
+        self._connections: dict[str, Any] = {}
         self._flush_period_s = flush_period_s
         self._last_flush = time.monotonic()
         self.counts: dict[str, int] = {}
         self.failure: BagError | None = None
         self._closed = False
+        self._queue_limit = max(int(queue_limit), 1)
+        self._pending: list[tuple[Any, int, bytes]] = []
+        self._wake = threading.Condition()   # guards the queue
+        self._disk = threading.Lock()        # guards the file: one writer at a time
+        self._stopping = False
+        self._told = False   # the failure has been raised to a caller
+        self.queue_high_water = 0   # the most messages ever waiting for the thread
+        self._thread: threading.Thread | None = None
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             self._writer.open()
             self._write_open_metadata()
         except (OSError, WriterError) as exc:
             self._fail(exc, opening=True)
+        if background:
+            self._thread = threading.Thread(target=self._drain, name=f'session {path.name}',
+                                            daemon=True)
+            self._thread.start()
 
-    def _fail(self, exc: Exception, opening: bool = False) -> None:
-        """Stop writing for good and raise the one line that says so."""
+    @property
+    def background(self) -> bool:
+        """Whether a writer thread does the disk work."""
+        return self._thread is not None
+
+    def _failed(self, exc: Exception, opening: bool = False) -> BagError:
+        """Stop writing for good; the one line that says so (kept in :attr:`failure`)."""
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
         self.failure = BagError(
             f'{self.path}: cannot create the session: {reason}' if opening else
@@ -265,7 +299,11 @@ class SessionWriter:
         if storage is not None:
             with contextlib.suppress(OSError):   # it is failing already: say it once
                 storage.abort()
-        raise self.failure from exc
+        return self.failure
+
+    def _fail(self, exc: Exception, opening: bool = False) -> None:
+        """Stop writing for good and raise the one line that says so."""
+        raise self._failed(exc, opening) from exc
 
     def _write_open_metadata(self) -> None:
         """metadata.yaml of the open session: topics and custom data, no counts yet."""
@@ -298,28 +336,98 @@ class SessionWriter:
         except (OSError, WriterError) as exc:
             self._fail(exc)
 
+    def _quiet(self, action: Any) -> Any:
+        """``action()`` while the writer thread is between batches (metadata, flush)."""
+        with self._disk:
+            return self._guarded(action)
+
     def add_topic(self, topic: str, msgtype: str,
                   definition: tuple[str, str] | None = None) -> None:
         """A topic of ``msgtype``, as our type store defines it, or as ``definition`` (message
         definition text, RIHS01 hash) does: a session rewritten keeps the definitions it was
         recorded with."""
         msgdef, rihs01 = definition if definition is not None else (None, None)
-        self._connections[topic] = self._guarded(
+        self._connections[topic] = self._quiet(
             lambda: self._writer.add_connection(topic, msgtype, typestore=self._typestore,
                                                 msgdef=msgdef, rihs01=rihs01))
         self.counts[topic] = 0
-        self._guarded(self._write_open_metadata)
+        self._quiet(self._write_open_metadata)
 
     def set_custom_data(self, key: str, value: str) -> None:
-        self._writer.set_custom_data(key, value)
+        with self._disk:
+            self._writer.set_custom_data(key, value)
         if self._writer.storage is not None:
-            self._guarded(self._write_open_metadata)
+            self._quiet(self._write_open_metadata)
 
     def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
-        self._guarded(self._writer.write, self._connections[topic], timestamp_ns, data)
+        if self._thread is None:
+            self._guarded(self._writer.write, self._connections[topic], timestamp_ns, data)
+            self.counts[topic] += 1
+            if time.monotonic() - self._last_flush >= self._flush_period_s:
+                self.flush()
+            return
+        if self.failure is not None:
+            self._told = True
+            raise self.failure
+        if self._closed:
+            raise BagError(f'{self.path}: the session is closed')
+        connection = self._connections[topic]
+        with self._wake:
+            pending = self._pending
+            if len(pending) >= self._queue_limit:   # the disk is behind: wait for it
+                self._wake.notify()
+                while (len(self._pending) >= self._queue_limit and self.failure is None
+                       and self._thread.is_alive()):
+                    self._wake.wait(0.1)
+                if self.failure is not None:
+                    self._told = True
+                    raise self.failure
+                pending = self._pending
+            pending.append((connection, timestamp_ns, data))
+            self.queue_high_water = max(self.queue_high_water, len(pending))
         self.counts[topic] += 1
-        if time.monotonic() - self._last_flush >= self._flush_period_s:
-            self.flush()
+
+    @property
+    def queued(self) -> int:
+        """Messages waiting for the writer thread."""
+        return len(self._pending)
+
+    def _drain(self) -> None:
+        """The writer thread: batches to the file, the flush when due, until closed."""
+        write, flush_period_s = self._writer.write, self._flush_period_s
+        while True:
+            with self._wake:
+                if not self._stopping:   # woken early by a full queue or by close()
+                    self._wake.wait(self.BATCH_PERIOD_S)
+                batch, self._pending = self._pending, []
+                stopping = self._stopping
+                self._wake.notify_all()   # a write waiting on a full queue
+            try:
+                with self._disk:
+                    for n, (connection, timestamp_ns, data) in enumerate(batch, 1):
+                        write(connection, timestamp_ns, data)
+                        if n % self.YIELD_EVERY == 0:
+                            time.sleep(0)
+                    if time.monotonic() - self._last_flush >= flush_period_s:
+                        self._flush()
+            except Exception as exc:
+                with self._disk:
+                    self._failed(exc)
+                with self._wake:
+                    self._pending = []
+                    self._wake.notify_all()
+                return
+            if stopping:
+                return
+
+    def _stop_thread(self) -> None:
+        thread = self._thread
+        if thread is None or not thread.is_alive():
+            return
+        with self._wake:
+            self._stopping = True
+            self._wake.notify_all()
+        thread.join()
 
     def write_indexed(self, topics: list[str], topic_index: npt.NDArray[np.int64],
                       timestamps_ns: npt.NDArray[np.int64], data: npt.NDArray[np.uint8],
@@ -349,8 +457,9 @@ class SessionWriter:
         self._guarded(write)
 
     def flush(self) -> None:
-        """Close the open chunk and push it to the disk."""
-        self._guarded(self._flush)
+        """Close the open chunk and push it to the disk (with a writer thread: what it has
+        written so far)."""
+        self._quiet(self._flush)
 
     def _flush(self) -> None:
         storage = self._writer.storage
@@ -361,10 +470,20 @@ class SessionWriter:
         self._last_flush = time.monotonic()
 
     def close(self) -> None:
-        """Finish the file (summary, index) and rewrite metadata.yaml with the counts.
-        Idempotent; after a failed write it only lets go of the file."""
+        """Write what is queued, finish the file (summary, index) and rewrite metadata.yaml
+        with the counts. Idempotent; after a failed write it only lets go of the file, and
+        raises that write's :class:`BagError` (once)."""
+        self._stop_thread()
+        with self._wake:
+            late, self._pending = self._pending, []   # queued while the thread stopped
+        for connection, timestamp_ns, data in late:
+            if self.failure is None:
+                self._guarded(self._writer.write, connection, timestamp_ns, data)
         if self._closed or self.failure is not None:
             self._closed = True
+            if self.failure is not None and not self._told and self._thread is not None:
+                self._told = True   # the thread's failure, not yet raised to anyone
+                raise self.failure
             return
         self._writer.custom_data.pop(CUSTOM_RECORDING, None)
         self._guarded(self._writer.close)

@@ -3,8 +3,10 @@
 One process, one executor (rclpy's EventsExecutor). ``lathe_sim`` owns ``/clock``: each step it
 advances sim time one control period and publishes a block of currents; the runner then spins
 the graph until the override answering that block (matched by stamp) has reached the simulator,
-and only then steps again. The graph's order of work is therefore fixed, and a run is
-deterministic for a given file and seed, and as fast as the CPU allows.
+and only then steps again. The nodes share one subscription to ``/clock`` (lathe_sim's time
+source sets every node's clock), not one each, and the recorder writes on its own thread. The
+graph's order of work is therefore fixed, and a run is deterministic for a given file and seed,
+and as fast as the CPU allows.
 
 ``pmc_bridge`` is a lifecycle node: the runner configures and activates it once the graph
 exists, and deactivates and cleans it up at the end. A machine file whose module is on
@@ -22,6 +24,7 @@ topic and the node when anyone but its own nodes is there (an RMW that ignores t
 
 from __future__ import annotations
 
+import gc
 import os
 import sys
 import time
@@ -32,7 +35,6 @@ from typing import Any
 
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -44,10 +46,11 @@ from turning_force.nodes.force_estimator import ForceEstimatorNode
 from turning_force.nodes.lathe_sim import LatheSimNode
 from turning_force.nodes.pmc_bridge import PmcBridgeNode
 from turning_force.nodes.session_recorder import GRAPH_TOPICS, SessionRecorderNode
-from turning_force.nodes.spin import check_domain_id
+from turning_force.nodes.spin import check_domain_id, freeze_heap, make_executor
 from turning_force.session.bag import CUSTOM_PARAMETERS, dumps
 
-__all__ = ['RunError', 'RunOutcome', 'foreign_endpoints', 'isolated_context', 'run_lockstep']
+__all__ = ['RunError', 'RunOutcome', 'foreign_endpoints', 'isolated_context', 'run_lockstep',
+           'share_clock']
 
 # How long the graph may take to answer one block before the run is declared broken [wall s].
 ANSWER_TIMEOUT_S = 5.0
@@ -75,16 +78,6 @@ class RunOutcome:
     def realtime_factor(self) -> float:
         """Simulated seconds per wall second (the graph's steps only, not its start-up)."""
         return 0.0 if self.wall_s <= 0 else self.sim_s / self.wall_s
-
-
-def _executor(context: Context, kind: str) -> Any:
-    if kind == 'events':
-        try:
-            from rclpy.experimental import EventsExecutor  # type: ignore[attr-defined]
-        except ImportError:  # an rclpy without it: the standard executor, slower
-            return SingleThreadedExecutor(context=context)
-        return EventsExecutor(context=context)
-    return SingleThreadedExecutor(context=context)
 
 
 def isolated_context() -> Context:
@@ -138,13 +131,32 @@ def _overrides(params: dict[str, Any], **extra: Any) -> list[Parameter[Any]]:
     return [Parameter(name, value=value) for name, value in values.items()]
 
 
+def share_clock(source: Node, nodes: list[Node]) -> bool:
+    """Drive every node's clock from ``source``'s time source: one ``/clock`` subscription
+    (and one callback per step) for the graph instead of one per node. The nodes keep
+    ``use_sim_time``; their own subscriptions go. False (nothing changed) with an rclpy whose
+    nodes keep their time source elsewhere."""
+    shared = getattr(source, '_time_source', None)   # rclpy has no public accessor for it
+    others = [node for node in nodes if node is not source]
+    owned = [getattr(node, '_time_source', None) for node in others]
+    if shared is None or None in owned:
+        return False
+    for node, own in zip(others, owned, strict=True):
+        assert own is not None
+        own.detach_node()   # its /clock subscription goes
+        shared.attach_clock(node.get_clock())
+    return True
+
+
 def run_lockstep(experiment: Experiment, out_dir: Path,
                  progress: Callable[[int, int], None] | None = None,
-                 executor_kind: str = 'events') -> RunOutcome:
+                 executor_kind: str = 'events', fast: bool = True) -> RunOutcome:
     """Run ``experiment`` through the graph in lock-step; record it to ``out_dir``.
 
     ``executor_kind``: ``events`` (rclpy's EventsExecutor, about ten times faster here) or
-    ``single`` (the SingleThreadedExecutor, for comparison).
+    ``single`` (the SingleThreadedExecutor, for comparison). ``fast`` false runs the graph as
+    it was before issue 9 where that path still exists (every node on its own ``/clock``
+    subscription, the recorder writing on the executor's thread), for the benchmark.
     """
     context = isolated_context()
     resolved = experiment.resolved_params()
@@ -153,14 +165,15 @@ def run_lockstep(experiment: Experiment, out_dir: Path,
                        bridge_settings.override_table)
     resolved['pmc_bridge'].update(pmc.parameters)
     nodes: list[Node] = []
-    executor = _executor(context, executor_kind)
+    executor = make_executor(context, executor_kind)
     try:
         pmc.start()
         sim = LatheSimNode(lockstep=True, context=context, parameter_overrides=_overrides(
             resolved['lathe_sim'], publish_clock=True, **pmc.parameters))
-        recorder = SessionRecorderNode(context=context, parameter_overrides=_overrides(
-            {}, output_dir=str(out_dir), experiment_file=experiment.source,
-            capture_parameters=False))
+        recorder = SessionRecorderNode(
+            background=fast, context=context, parameter_overrides=_overrides(
+                {}, output_dir=str(out_dir), experiment_file=experiment.source,
+                capture_parameters=False))
         recorder.add_custom_data(CUSTOM_PARAMETERS, dumps(resolved))
         bridge = PmcBridgeNode(autostart=False, context=context, parameter_overrides=_overrides(
             resolved['pmc_bridge']))
@@ -173,6 +186,8 @@ def run_lockstep(experiment: Experiment, out_dir: Path,
             bridge,
             recorder,
         ]
+        if fast:
+            share_clock(sim, nodes)
         for node in nodes:
             executor.add_node(node)
         bridge.start()   # configure (machine file, module) and activate
@@ -180,6 +195,8 @@ def run_lockstep(experiment: Experiment, out_dir: Path,
         topics = [*GRAPH_TOPICS, '/clock']
         _refuse_foreign(sim, own, topics)
         steps = round(experiment.run.duration_s / experiment.run.control_period_s)
+        if fast:
+            freeze_heap()   # start-up's objects out of the collector's scans while stepping
         start = time.perf_counter()
         for k in range(steps):
             if k and k % FOREIGN_CHECK_STEPS == 0:
@@ -214,6 +231,7 @@ def run_lockstep(experiment: Experiment, out_dir: Path,
         executor.shutdown()
         rclpy.try_shutdown(context=context)
         pmc.stop()
+        gc.unfreeze()   # collectable again once the run is over (many runs in one process)
 
 
 def print_progress(done: int, total: int) -> None:

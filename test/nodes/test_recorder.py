@@ -1,0 +1,84 @@
+"""The recorder's disk work on a writer thread (SessionWriter ``background``): the same session
+as writing on the caller's thread, and a failing disk still said, once, as the one BagError."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from rclpy.serialization import serialize_message
+from rosbags.highlevel import AnyReader
+from std_msgs.msg import Float64
+
+from turning_force.session.bag import SessionWriter, typestore
+
+TOPICS = {'/a': 'std_msgs/msg/Float64', '/b': 'std_msgs/msg/Float64'}
+
+
+def write(path: Path, background: bool, count: int) -> SessionWriter:
+    writer = SessionWriter(path, flush_period_s=0.001, background=background,
+                           queue_limit=64)   # a small queue: writes wait for the thread
+    for topic, msgtype in TOPICS.items():
+        writer.add_topic(topic, msgtype)
+    for k in range(count):
+        writer.write('/a' if k % 3 else '/b', 1_000 * k, serialize_message(Float64(data=k)))
+    return writer
+
+
+def read(path: Path) -> list[tuple[str, int, bytes]]:
+    with AnyReader([path], default_typestore=typestore()) as reader:
+        return [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages()]
+
+
+def test_a_writer_thread_writes_the_same_session(tmp_path):
+    threaded = write(tmp_path / 'threaded', True, 5000)
+    assert threaded.background and threaded.counts == {'/a': 3333, '/b': 1667}
+    threaded.close()
+    threaded.close()   # idempotent
+    plain = write(tmp_path / 'plain', False, 5000)
+    plain.close()
+    assert read(tmp_path / 'threaded') == read(tmp_path / 'plain')   # every message, in order
+    # The queue never held more than its limit (the writes waited for the thread instead).
+    assert 0 < threaded.queue_high_water <= 64
+
+
+FULL_DISK = """
+import resource, signal, sys
+from pathlib import Path
+from rclpy.serialization import serialize_message
+from std_msgs.msg import Float64
+from turning_force.session.bag import BagError, SessionWriter
+
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+path = Path(sys.argv[1])
+writer = SessionWriter(path, flush_period_s=0.0, background=True)
+writer.add_topic('/a', 'std_msgs/msg/Float64')
+limit = 200_000   # a file size limit fails the write as a full disk would
+resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+said = []
+for k in range(200_000):
+    try:
+        writer.write('/a', k, serialize_message(Float64(data=k)) * 8)
+    except BagError as exc:
+        said.append(('write', str(exc)))
+        break
+try:
+    writer.close()
+except BagError as exc:
+    said.append(('close', str(exc)))
+writer.close()   # once said, not again
+print(said)
+"""
+
+
+def test_a_full_disk_on_the_writer_thread_is_one_bag_error(tmp_path):
+    bag = tmp_path / 'full'
+    run = subprocess.run([sys.executable, '-c', FULL_DISK, str(bag)], capture_output=True,
+                         text=True, timeout=120, check=False)
+    assert run.returncode == 0, run.stderr
+    said = eval(run.stdout.strip().splitlines()[-1])
+    assert len(said) == 1, said   # from a write, or from close if the writes were all queued
+    assert said[0][1] == (f'{bag}: cannot write the session: File too large; what was written '
+                          f'before stays readable (`turning-force repair {bag}`)')
+    assert 'Traceback' not in run.stderr
