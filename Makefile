@@ -45,7 +45,7 @@ $(STAMPS)/package: $(STAMPS)/msgs src/turning_force/pyproject.toml
 # The compiled kernel into numba's on-disk cache (about a minute, once per change of jit.py), so
 # that no run and no node compiles it on its control path.
 $(STAMPS)/kernel: $(STAMPS)/package $(KERNEL)
-	$(PY) -c 'import turning_force.core.kernel.jit'
+	$(PY) -c 'from turning_force.core import kernel; kernel.load()'
 	@touch $@
 
 run: setup
