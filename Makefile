@@ -13,7 +13,7 @@ EXPERIMENT ?= config/experiments/park1998_fig8.yaml
 # Keep DDS discovery on this machine, so runs and tests do not hear other hosts.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: setup run test test-all lint reproduce bench clean
+.PHONY: setup run test test-all lint reproduce bench bench-all clean
 
 KERNEL  := src/turning_force/turning_force/core/kernel/jit.py
 
@@ -66,7 +66,12 @@ test: lint
 test-all: lint
 	$(PY) -m pytest -q test
 
+# make bench: issue 9's table, old beside new, in one run (about ten minutes);
+# make bench-all: every benchmark in test/bench/ (each prints its own details).
 bench: setup
+	$(PY) test/bench/bench_table.py
+
+bench-all: setup
 	@for f in test/bench/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done
 
 clean:

@@ -435,9 +435,12 @@ class SessionWriter:
         """Many messages at once, in order: message ``i`` (``data[offsets[i]:offsets[i +
         1]]``, CDR) on ``topics[topic_index[i]]``, logged at ``timestamps_ns[i]``. What
         :meth:`write` does for each, without a Python call per message (no wall-time flush:
-        a batch is written as fast as it is made; chunks close at rosbags' 1 MiB)."""
+        a batch is written as fast as it is made; chunks close at rosbags' 1 MiB). Not with a
+        writer thread (``background``): its queue would be overtaken."""
+        if self._thread is not None:
+            raise RuntimeError(f'{self.path}: write_indexed on a session written by a thread')
         connections = [self._connections[t] for t in topics]
-        channel_of = np.array([c.id for c in connections], dtype=np.int64)  # type: ignore
+        channel_of = np.array([c.id for c in connections], dtype=np.int64)
         channels = channel_of[topic_index]
 
         def write() -> None:
@@ -446,7 +449,7 @@ class SessionWriter:
             storage.write_many(channels, timestamps_ns, data, offsets)
             for k, connection in enumerate(connections):
                 count = int(np.count_nonzero(topic_index == k))
-                self._writer.counts[connection.id] += count  # type: ignore[attr-defined]
+                self._writer.counts[connection.id] += count
                 self.counts[topics[k]] += count
             if timestamps_ns.size:
                 self._writer.min_timestamp = min(self._writer.min_timestamp,
