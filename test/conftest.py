@@ -51,11 +51,8 @@ def context() -> Iterator[Any]:
         rclpy.try_shutdown(context=ctx)
 
 
-@pytest.fixture
-def executor(context: Any) -> Iterator[Any]:
-    from rclpy.executors import SingleThreadedExecutor
-
-    ex = SingleThreadedExecutor(context=context)
+def closing_executor(ex: Any) -> Iterator[Any]:
+    """Yield ``ex``; then destroy the nodes added to it and shut it down."""
     try:
         yield ex
     finally:
@@ -63,6 +60,21 @@ def executor(context: Any) -> Iterator[Any]:
             ex.remove_node(node)
             node.destroy_node()
         ex.shutdown()
+
+
+@pytest.fixture
+def executor(context: Any) -> Iterator[Any]:
+    from rclpy.executors import SingleThreadedExecutor
+
+    yield from closing_executor(SingleThreadedExecutor(context=context))
+
+
+@pytest.fixture
+def events(context: Any) -> Iterator[Any]:
+    """rclpy's EventsExecutor (as the nodes run) on the test's context."""
+    from turning_force.nodes.spin import make_executor
+
+    yield from closing_executor(make_executor(context, 'events'))
 
 
 @pytest.fixture

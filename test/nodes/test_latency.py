@@ -24,20 +24,7 @@ from turning_force.nodes.force_controller import ForceControllerNode
 from turning_force.nodes.force_estimator import ForceEstimatorNode
 from turning_force.nodes.lathe_sim import LatheSimNode
 from turning_force.nodes.pmc_bridge import PmcBridgeNode
-from turning_force.nodes.spin import RT_PRIORITY_ENV, make_executor, real_time_priority
-
-
-@pytest.fixture
-def events(context: Any):
-    """The EventsExecutor on the test's context; its nodes destroyed after the test."""
-    executor = make_executor(context, 'events')
-    try:
-        yield executor
-    finally:
-        for node in list(executor.get_nodes()):
-            executor.remove_node(node)
-            node.destroy_node()
-        executor.shutdown()
+from turning_force.nodes.spin import RT_PRIORITY_ENV, real_time_priority
 
 
 def spin_until(executor: Any, condition: Callable[[], bool], timeout_s: float) -> bool:
