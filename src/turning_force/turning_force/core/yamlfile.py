@@ -4,7 +4,7 @@ the file (experiment files, ``--params`` overlays, machine files, ``--set`` valu
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 from yaml.nodes import MappingNode
@@ -14,7 +14,15 @@ from turning_force.core.errors import ConfigError
 __all__ = ['load_yaml', 'read_text', 'read_yaml_file', 'yaml_error_text']
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
+# libyaml's parser where PyYAML was built with it (the wheels are): an experiment file in 2 ms
+# instead of 30, a tenth of the command's start-up.
+if TYPE_CHECKING:
+    _SafeLoader = yaml.SafeLoader
+else:
+    _SafeLoader = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
+
+
+class _UniqueKeyLoader(_SafeLoader):
     """PyYAML's safe loader, refusing a key given twice in one mapping (it keeps the last)."""
 
     def construct_mapping(self, node: MappingNode, deep: bool = False) -> dict[Any, Any]:
