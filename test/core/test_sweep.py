@@ -100,7 +100,7 @@ def test_a_mapping_grid_takes_lists_and_range_texts():
     (f'{LAMBDA}=0:20:3log', 'a log-spaced range needs START and STOP above 0'),
     (f'{LAMBDA}=', 'expected node.param=START:STOP:N'),
     ('smc_lambda_per_s=5', 'expected node.param=START:STOP:N'),
-    (f'{LAMBDA}=5,,6', 'not a list of YAML values .*found'),
+    (f'{LAMBDA}=5,,6', r'not a list of YAML values .*: line 1, column \d+: '),
     (f'{LAMBDA}=5,null', 'an empty value'),
     (f'{LAMBDA}=5,[6', 'not a list of YAML values'),
     (f'{LAMBDA}=5,5.0', '5.0 is given twice'),
