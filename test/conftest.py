@@ -77,10 +77,9 @@ def events(context: Any) -> Iterator[Any]:
     yield from closing_executor(make_executor(context, 'events'))
 
 
-@pytest.fixture
-def spin_until(executor: Any) -> Callable[..., bool]:
-    """``spin_until(condition, timeout_s=10)``: spin until ``condition()`` holds or the deadline
-    passes; returns whether it held. No sleeps: the executor waits on its own events."""
+def spinner(executor: Any) -> Callable[..., bool]:
+    """``spin(condition, timeout_s=10)``: spin ``executor`` until ``condition()`` holds or the
+    deadline passes; returns whether it held. No sleeps: the executor waits on its own events."""
 
     def spin(condition: Callable[[], bool], timeout_s: float = 10.0) -> bool:
         deadline = time.monotonic() + timeout_s
@@ -91,6 +90,18 @@ def spin_until(executor: Any) -> Callable[..., bool]:
         return True
 
     return spin
+
+
+@pytest.fixture
+def spin_until(executor: Any) -> Callable[..., bool]:
+    """:func:`spinner` on the SingleThreadedExecutor fixture."""
+    return spinner(executor)
+
+
+@pytest.fixture
+def spin_events_until(events: Any) -> Callable[..., bool]:
+    """:func:`spinner` on the EventsExecutor fixture."""
+    return spinner(events)
 
 
 @pytest.fixture(scope='session')

@@ -27,15 +27,6 @@ from turning_force.nodes.pmc_bridge import PmcBridgeNode
 from turning_force.nodes.spin import RT_PRIORITY_ENV, real_time_priority
 
 
-def spin_until(executor: Any, condition: Callable[[], bool], timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        executor.spin_once(timeout_sec=0.05)
-    return True
-
-
 class Reports:
     """lathe_sim's /diagnostics statuses, in order, with the latency values parsed."""
 
@@ -99,8 +90,8 @@ class DelayedController(ForceControllerNode):
         super()._on_estimate(msg)
 
 
-def test_a_delay_in_one_callback_raises_the_published_latency_by_that_much(context, events,
-                                                                          fig8):
+def test_a_delay_in_one_callback_raises_the_published_latency_by_that_much(
+        context, events, spin_events_until, fig8):
     params = load_experiment(fig8).resolved_params()
 
     def node(cls: Any, section: str, **extra: Any) -> Any:
@@ -115,10 +106,10 @@ def test_a_delay_in_one_callback_raises_the_published_latency_by_that_much(conte
                  node(PmcBridgeNode, 'pmc_bridge', armed=True)):
         events.add_node(each)
     # The window (1 s) holds only blocks after a change once two reports have come after it.
-    assert spin_until(events, reports.after(3), 30.0)
+    assert spin_events_until(reports.after(3), 30.0)
     before = reports.values(-1)
     delay_s = controller.delay_s = 0.004
-    assert spin_until(events, reports.after(2), 30.0)
+    assert spin_events_until(reports.after(2), 30.0)
     after = reports.values(-1)
     assert set(LATENCY_KEYS) <= set(after)
     assert int(before['answered_blocks']) > 50 and int(after['answered_blocks']) > 50
@@ -159,7 +150,7 @@ class Answerer(Node):
         self._publisher.publish(self._reply)
 
 
-def test_withheld_answers_are_missed_periods(context, events):
+def test_withheld_answers_are_missed_periods(context, events, spin_events_until):
     # 20 Hz blocks (50 ms: far more than an in-process answer takes), a 1 s window of 20
     # blocks, every 4th answer withheld: 5 missed periods in every window, the status WARN.
     reports = Reports(context, events)
@@ -168,8 +159,8 @@ def test_withheld_answers_are_missed_periods(context, events):
         Parameter('control_period_s', value=0.05), Parameter('latency_window_s', value=1.0)])
     events.add_node(answerer)
     events.add_node(sim)
-    assert spin_until(events, lambda: answerer.blocks >= 4, 30.0)
-    assert spin_until(events, reports.after(2), 30.0)   # a window full of answered traffic
+    assert spin_events_until(lambda: answerer.blocks >= 4, 30.0)
+    assert spin_events_until(reports.after(2), 30.0)   # a window full of answered traffic
     values = reports.values(-1)
     assert values['latency_window_s'] == '1'
     assert values['missed_periods'] == '5'
