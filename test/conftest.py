@@ -38,6 +38,15 @@ def reference_bag() -> Path:
     return ROOT / 'bags' / 'reference' / 'park1998_fig8'
 
 
+@pytest.fixture(scope='session')
+def reference(reference_bag: Path) -> Any:
+    """The reference session read once (the session tests compare what they do to it; none
+    changes it)."""
+    from turning_force.session.reader import read_session
+
+    return read_session(reference_bag)
+
+
 @pytest.fixture
 def context() -> Iterator[Any]:
     import rclpy

@@ -74,10 +74,6 @@ def recorded_equal(session: Session, reference: Session) -> bool:
                for k, v in reference.signals.items())
 
 
-@pytest.fixture(scope='module')
-def reference() -> Session:
-    return read_session(REFERENCE)
-
 
 @pytest.fixture(scope='module')
 def written_today(tmp_path_factory: pytest.TempPathFactory, reference: Session) \

@@ -30,11 +30,6 @@ from turning_force.session.bag import BagError
 from turning_force.session.reader import read_session, recorded_metrics
 
 
-@pytest.fixture(scope='module')
-def reference():
-    return read_session(REFERENCE)
-
-
 def test_random_bytes_in_the_middle_are_an_error_naming_what_is_missing(tmp_path):
     # Issue 8: 4 KiB of random bytes over the middle of the file replayed 593 of 1200 blocks
     # with no word. They wreck the second of the two chunks.

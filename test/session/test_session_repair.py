@@ -22,7 +22,6 @@ from turning_force_msgs.msg import ServoCurrents
 
 from bagfaults import (
     FIRST_CHUNK_BLOCKS,
-    REFERENCE,
     REFERENCE_BLOCKS,
     assert_blocks_equal,
     copy_reference,
@@ -32,11 +31,6 @@ from bagfaults import (
 from turning_force.session.bag import CUSTOM_RECORDING, CUSTOM_REPAIR, BagError, typestore
 from turning_force.session.reader import read_session
 from turning_force.session.repair import repair
-
-
-@pytest.fixture(scope='module')
-def reference():
-    return read_session(REFERENCE)
 
 
 @pytest.mark.parametrize(('fraction', 'blocks'), [(0.99, REFERENCE_BLOCKS),
