@@ -6,6 +6,8 @@ controller's reference topic."""
 
 from __future__ import annotations
 
+from functools import partial
+
 import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -65,6 +67,19 @@ class Controller:
             self.block(pct)
             return False
         return self.spin_until(check, timeout_s)
+
+    def answered(self, count: int, pct: float = 60.0) -> None:
+        """``count`` blocks in lock step: each published alone and answered before the next.
+
+        :meth:`until` publishes a block on every spin, faster than the bridge takes them, so its
+        depth-10 queues drop the oldest; a detector that needs every block of a level (the
+        breakage window) is fed with this instead."""
+        for _ in range(count):
+            self.block(pct)
+            assert self.spin_until(partial(self._answered, self._k), 15.0), self._k
+
+    def _answered(self, sec: int) -> bool:
+        return any(o.header.stamp.sec == sec for o in self.overrides[-5:])
 
     def last(self) -> FeedOverride:
         return self.overrides[-1]
@@ -155,9 +170,9 @@ def test_a_tool_breakage_holds_the_feed_and_the_cut_is_logged(context, executor,
     bridge_on(context, executor, server, tmp_path, breakage_spike_fraction=1.0,
               breakage_window_s=0.05, cut_settle_s=0.0, tool='T0303')
     assert controller.until(lambda: controller.overrides and controller.last().engaged)
-    for _ in range(10):                                     # a level of 500 N
-        controller.block()
-    controller.force_n = 1200.0
+    controller.answered(10)                                 # a level of 500 N, every block
+    controller.force_n = 1200.0                             # seen: the window is full of it
+    controller.answered(1)
     assert controller.until(
         lambda: controller.last().reason == FeedOverride.REASON_TOOL_BREAKAGE)
     assert controller.last().applied_pct == 0.0 and controller.last().alarm
