@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from test_kernel import EXPERIMENTS, FIG8, FILES, IN_PYTHON
 
 from turning_force import robustness
@@ -340,3 +342,61 @@ def test_a_friction_re_zero_in_air_and_its_notes():
     assert_same_run(run, run_core(e, compiled=False))
     assert any('re-zeroed' in text for text in run.chain.estimate_detail.values())
     replays_itself(run, e, True)
+
+
+# The tool in the cut three times: 1, 2 and 3 mm from 0, 3 and 6 s, out of it from 2, 5 and 8 s.
+IN_AND_OUT = ['experiment.duration_s=9.0',
+              'lathe_sim.depth_times_s=[0.0, 2.0, 3.0, 5.0, 6.0, 8.0]',
+              'lathe_sim.depth_mm=[1.0, 0.0, 2.0, 0.0, 3.0, 0.0]']
+
+
+@pytest.mark.parametrize(('sets', 'python_blocks'), [
+    ([], 0),
+    ([], 250),                                           # the kernel takes over in the 1st cut
+    (['pmc_bridge.overload_force_n=900.0'], 0),         # events past 720 N, then a hold
+    (['pmc_bridge.overload_force_n=900.0', 'lathe_sim.force_noise_fraction=0.05',
+      'pmc_bridge.engage_time_s=0.05'], 0),
+    (['pmc_bridge.overload_force_n=700.0'], 0),
+], ids=['cuts', 'hand-over', 'events', 'noisy-debounce', 'hold'])
+def test_the_cut_log_from_the_rows_is_the_gates(sets, python_blocks):
+    """CoreRun.cuts where the kernel ran (cut_records, from the rows) against the Python gate's
+    own cut log (a run done wholly in Python hands it over): equal, field for field."""
+    e = load_experiment(FIG8).with_sets([*IN_AND_OUT, *sets])
+    compiled = run_core(e, compiled=True, python_blocks=python_blocks)
+    reference = run_core(e, compiled=False)
+    assert compiled.chain.compiled_from == python_blocks and reference.chain.compiled_from is None
+    assert compiled.cuts == reference.cuts
+    cuts = reference.cuts
+    if not sets:
+        # Analysis: the force rises and falls with tau_c = 50 ms past the 100 N engage and 50 N
+        # exit thresholds, so a cut starts within a block or two of the depth's step in and
+        # ends within 0.15 s of its step out (the debounce's blocks are taken off).
+        assert [c.index for c in cuts] == [1, 2, 3]
+        for cut, t_in, t_out in zip(cuts, (0.0, 3.0, 6.0), (2.0, 5.0, 8.0), strict=True):
+            assert t_in <= cut.start_s <= t_in + 0.03 and t_out <= cut.end_s <= t_out + 0.15
+            assert cut.complete and not cut.breakage and cut.overload_events == 0
+        assert cuts[0].min_override_pct >= 50.0   # 1 mm holds 500 N near 114 %
+    else:
+        # The 2 mm entry overshoots past the reaction's limit (0.8 x overload_force_n) and past
+        # overload_force_n: the hold (0 %) ends the cut and the feed stays held.
+        assert len(cuts) == 2 and cuts[1].min_override_pct == 0.0
+        assert cuts[1].overload_events >= 1 and cuts[1].max_force_n > e.bridge.overload_force_n
+
+
+@settings(max_examples=10, derandomize=True, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(st.floats(0.05, 0.8), st.sampled_from([0.0, 0.0, 0.5, 1.0, 2.5])),
+                min_size=2, max_size=8),
+       st.sampled_from([0.01, 0.03, 0.05]), st.sampled_from([650.0, 900.0, 2000.0]))
+def test_any_schedule_of_cuts_logs_as_the_gate_does(steps, engage_time_s, overload_force_n):
+    """Depth steps in and out of the cut, some shorter than the engagement's debounce, at
+    overload limits that hold, only raise events, or neither: the rows' cut log is the gate's."""
+    times = [0.0]
+    for length, _ in steps[:-1]:
+        times.append(round(times[-1] + length, 2))
+    e = load_experiment(FIG8).with_sets([
+        f'experiment.duration_s={times[-1] + steps[-1][0] + 0.3:.2f}',
+        f'lathe_sim.depth_times_s={times}', f'lathe_sim.depth_mm={[d for _, d in steps]}',
+        f'pmc_bridge.engage_time_s={engage_time_s}',
+        f'pmc_bridge.overload_force_n={overload_force_n}'])
+    assert run_core(e, compiled=True).cuts == run_core(e, compiled=False).cuts

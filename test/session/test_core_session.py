@@ -1,7 +1,7 @@
 """``run --core --out``: the core loop's session against the lock-step graph's, for one experiment
 file: the same signals read back (estimates, requests, overrides, reasons: equal), the same
-messages on every topic but /diagnostics (which only nodes publish), and both read by the mcap
-library's own ROS 2 decoder, reported and replayed."""
+messages on every topic but /diagnostics (which only nodes publish), the cut log among them,
+and both read by the mcap library's own ROS 2 decoder, reported and replayed."""
 
 from __future__ import annotations
 
@@ -21,8 +21,10 @@ from turning_force.session.core_session import NOT_RECORDED, RECORDER, TOPICS, r
 from turning_force.session.reader import read_session, recorded_metrics
 from turning_force.session.run import run_lockstep
 
-# Three seconds of fig8: the first depth, settled.
-SETS = ['experiment.duration_s=3.0']
+# Three seconds of fig8: the first depth, settled, and the tool out of the cut from 2 s (a cut
+# that ends: the cut log).
+SETS = ['experiment.duration_s=3.0', 'lathe_sim.depth_times_s=[0.0, 2.0]',
+        'lathe_sim.depth_mm=[1.0, 0.0]']
 BLOCKS = 300
 
 
@@ -60,7 +62,8 @@ def test_both_read_back_to_the_same_signals(sessions):
     np.testing.assert_array_equal(core.t_s, graph.t_s)
     np.testing.assert_array_equal(core.answer_stamps_ns, graph.answer_stamps_ns)
     assert core.arm_changes == graph.arm_changes
-    assert core.cuts == graph.cuts
+    assert core.cuts == graph.cuts and len(core.cuts) == 1
+    assert core.cuts[0].complete and 2.0 <= core.cuts[0].end_s <= 2.15
     assert recorded_metrics(core) == recorded_metrics(graph)
     assert core.custom_data[CUSTOM_PARAMETERS] == graph.custom_data[CUSTOM_PARAMETERS]
     assert core.custom_data[CUSTOM_EXPERIMENT] == graph.custom_data[CUSTOM_EXPERIMENT]

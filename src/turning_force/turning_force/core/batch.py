@@ -28,15 +28,17 @@ import numpy.typing as npt
 from turning_force.core import kernel
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import ConfigError
-from turning_force.core.estimation import EstimatorSettings
+from turning_force.core.estimation import EstimateStatus, EstimatorSettings
 from turning_force.core.experiment import Experiment
 from turning_force.core.loop import ChainStep, ControlChain
 from turning_force.core.overrides import OverrideTable, get_table
 from turning_force.core.plant import PlantBlock
-from turning_force.core.shopfloor import InputValues
+from turning_force.core.pmc import BridgeSettings, Reason
+from turning_force.core.shopfloor import EVENT_RESET_FRACTION, CutRecord, InputValues
 from turning_force.core.simulate import SimulationResult, run_loop
 
-__all__ = ['ChainTrace', 'CoreRun', 'CurrentArrays', 'InputArrays', 'replay_chain', 'run_core']
+__all__ = ['ChainTrace', 'CoreRun', 'CurrentArrays', 'InputArrays', 'cut_records', 'replay_chain',
+           'run_core']
 
 FloatArray = npt.NDArray[np.float64]
 Int8Array = npt.NDArray[np.int8]
@@ -270,6 +272,77 @@ class CoreRun:
     # feed_rate_mm_min, override_pct (what the PMC applied during the block),
     # spindle_speed_rpm, specific_cutting_force_n_mm2.
     plant: dict[str, FloatArray] = field(default_factory=dict)
+    # The cuts that ended during the run, as the gate's cut log has them (pmc/cuts).
+    cuts: list[CutRecord] = field(default_factory=list)
+
+
+def cut_records(chain: ChainTrace, currents: CurrentArrays,
+                bridge: BridgeSettings) -> list[CutRecord]:
+    """The cuts that ended in a closed-loop run, as the gate's cut log records them
+    (:class:`turning_force.core.shopfloor.CutLog`: what the bridge publishes on ``pmc/cuts``),
+    from the run's rows: the engagement the gate decided (``chain.engaged``), the estimates it
+    judged, the overrides it applied and the commands' reachability. The cut still open at the
+    end is not among them (the bridge publishes it when it is deactivated, after a session's
+    recording has ended).
+
+    For runs the gate armed at most once, at their start (``run_core``'s): an overload hold
+    then starts exactly where the decisions' reason turns to ``OVERLOAD_HOLD``. The kernel
+    keeps no cut log; this gives the Python gate's records, number for number (``fsum`` where
+    the log sums), for the shop-floor settings the kernel runs (:data:`kernel.NEUTRAL`: no
+    breakage detector, no teach-in).
+    """
+    n = len(chain)
+    if n == 0:
+        return []
+    period_s = bridge.control_period_s
+    debounce = max(1, math.ceil(bridge.engage_time_s / period_s - 1e-9))
+    status = chain.estimate_status
+    force = chain.estimated_force_n
+    # The blocks whose estimate the gate judged (ShopFloor.observe): valid and finite.
+    judged = ((status != EstimateStatus.INVALID_INPUT) & (status != EstimateStatus.STALE)
+              & np.isfinite(force))
+    # Overload events (ShopFloor.observe): a judged force above the reaction's limit while not
+    # in an event, the event ending below EVENT_RESET_FRACTION of it; or a hold started.
+    limit = bridge.reaction_force_fraction * bridge.overload_force_n
+    above = judged & (force > limit)
+    below = judged & (force < EVENT_RESET_FRACTION * limit)
+    marks = np.flatnonzero(above | below)
+    last_mark = np.full(n, -1)
+    last_mark[marks] = marks
+    last_mark = np.maximum.accumulate(last_mark)
+    previous = np.concatenate(([-1], last_mark[:-1]))
+    in_event_before = (previous >= 0) & above[np.maximum(previous, 0)]
+    holding = chain.reason == Reason.OVERLOAD_HOLD
+    hold_started = holding & ~np.concatenate(([False], holding[:-1]))
+    event = (above & ~in_event_before) | (hold_started & judged)
+    # What each block's cut-log entry holds: the judged force, the override applied during it
+    # (the previous answer; 100 % before the first), the command's flag where one answered.
+    applied = np.concatenate(([100.0], chain.applied_pct[:-1]))
+    commanded = np.isfinite(chain.requested_override_pct)
+    t_s = currents.t_end_s
+    engaged = chain.engaged.astype(np.int8)
+    edges = np.diff(np.concatenate(([0], engaged)))
+    records: list[CutRecord] = []
+    for start, end in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=False):
+        # CutLog.start: the cut began debounce - 1 blocks before the one that engaged;
+        # CutLog.end: the last debounce - 1 blocks before the one that took the tool out were
+        # already out of it.
+        first, last = int(start) - (debounce - 1), int(end) - debounce
+        if last < first:
+            continue
+        k = slice(max(first, 0), last + 1)
+        forces = force[k][judged[k]].tolist()
+        flags = chain.reference_reachable[k][commanded[k]].tolist()
+        records.append(CutRecord(
+            index=len(records) + 1, tool=bridge.tool,
+            start_s=float(t_s[k.start]) - period_s, end_s=float(t_s[last]),
+            programmed_feed_s=math.fsum(p / 100.0 * period_s for p in applied[k].tolist()),
+            max_force_n=max(forces) if forces else math.nan,
+            mean_force_n=math.fsum(forces) / len(forces) if forces else math.nan,
+            min_override_pct=float(applied[k].min()),
+            overload_events=int(event[k].sum()), breakage=False,
+            reachable_fraction=sum(flags) / len(flags) if flags else math.nan))
+    return records
 
 
 # --- replay ---------------------------------------------------------------------------------
@@ -479,6 +552,7 @@ class _Keeper:
         self.chain = ChainTrace._empty(self.n)
         self.rows: FloatArray | None = None
         self.table = get_table(experiment.bridge.override_table)
+        self.python_cuts: list[CutRecord] | None = None   # the gate's, where Python ran it all
 
     def python_block(self, k: int, block: PlantBlock, step: ChainStep,
                      reference_n: float) -> None:
@@ -498,6 +572,9 @@ class _Keeper:
         c = self.currents
         return (c.t0_s, c.phase_u_a, c.phase_v_a, c.rotor_angle_rad, c.feed_rate_mm_min,
                 self.rows)
+
+    def python_done(self, chain: ControlChain, blocks: int) -> None:
+        self.python_cuts = list(chain.cuts) if blocks == self.n else None
 
     def kernel_done(self, first: int) -> None:
         assert self.rows is not None
@@ -530,5 +607,8 @@ def run_core(experiment: Experiment, compiled: bool | None = None,
         'spindle_speed_rpm': np.full(n, experiment.plant.spindle_speed_rpm),
         'specific_cutting_force_n_mm2': np.full(n, experiment.plant.specific_cutting_force_n_mm2),
     }
-    return CoreRun(result, keeper.currents, chain, plant)
+    cuts = keeper.python_cuts
+    if cuts is None:
+        cuts = cut_records(chain, keeper.currents, experiment.bridge)
+    return CoreRun(result, keeper.currents, chain, plant, cuts)
 

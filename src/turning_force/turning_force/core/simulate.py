@@ -88,6 +88,10 @@ class Keeper(Protocol):
     def kernel_done(self, first: int) -> None:
         """The kernel has written blocks ``first`` .. n - 1."""
 
+    def python_done(self, chain: ControlChain, blocks: int) -> None:
+        """The Python loop has run blocks 0 .. ``blocks`` - 1 on ``chain`` (its gate's cut
+        log among what it holds); the kernel runs the rest, if any."""
+
 
 # Blocks per call of the kernel: the plant's noise for them is drawn in advance.
 CHUNK_BLOCKS = 4096
@@ -157,6 +161,8 @@ def run_loop(experiment: Experiment, compiled: bool | None = None, python_blocks
         )
         applied = step.decision.applied_pct
         k += 1
+    if keeper is not None:
+        keeper.python_done(chain, k)
     compiled_from = None
     if k < steps:
         compiled_from = k

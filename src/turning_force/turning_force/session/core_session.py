@@ -15,19 +15,21 @@ The messages are serialised as arrays (:func:`turning_force.session.codec.encode
 a chunk at a time (:meth:`turning_force.session.bag.SessionWriter.write_indexed`): an hour of
 fig8 takes seconds, not the minutes a message at a time would.
 
-What the graph's session has and this one does not (:data:`NOT_RECORDED`): ``/diagnostics``
-(the nodes' rates, ages and kernel paths: there are no nodes), ``pmc/cuts`` and
-``force/reference`` (the cut log and a learned reference: the core run does not hand out the
-gate's cut records), ``force/measured`` (a dynamometer's reading, drawn by the node from its own
-random stream), and the text of ``detail`` in ``pmc/feed_override`` (empty; the reason is
-there). The signals the reader and replay take are equal.
+The cut log (``pmc/cuts``) is the gate's (:attr:`CoreRun.cuts`): each cut that ended, logged
+with the override of the block whose answer ended it, as the bridge publishes it. What the
+graph's session has and this one does not (:data:`NOT_RECORDED`): ``/diagnostics`` (the nodes'
+rates, ages and kernel paths: there are no nodes), ``force/reference`` (a reference learned by
+teach-in: the core run keeps none), ``force/measured`` (a dynamometer's reading, drawn by the
+node from its own random stream), and the text of ``detail`` in ``pmc/feed_override`` (empty;
+the reason is there). The signals the reader and replay take are equal.
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -70,10 +72,11 @@ TOPICS: dict[str, str] = {
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     '/force/measured': 'geometry_msgs/msg/WrenchStamped',
 }
-# Per block, in the order the graph's messages reach the recorder.
+# Per block, in the order the graph's messages reach the recorder (a cut that ended is
+# published by the bridge as it answers the block, before the override).
 PER_BLOCK = ('/machine/inputs', '/servo/currents', '/servo/joint_state', '/sim/cutting_state',
-             '/force/estimate', '/control/feed_command', '/pmc/feed_override')
-NOT_RECORDED = ('/diagnostics', '/pmc/cuts', '/force/reference', '/force/measured')
+             '/force/estimate', '/control/feed_command', '/pmc/cuts', '/pmc/feed_override')
+NOT_RECORDED = ('/diagnostics', '/force/reference', '/force/measured')
 # Custom data saying who recorded the session.
 RECORDER = 'turning_force.recorder'
 FRAME = 'z_axis'   # lathe_sim's frame
@@ -174,6 +177,7 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
         'table': table.name, 'armed': False, 'reason': 1,
         'detail': 'inactive: programmed feed', 'program_enable': -1, 'threading': -1,
         'operator_dial_pct': np.nan}, 1)
+    cuts, cut_blocks = _cuts(store, run, experiment, end_ns)
     for start in range(0, n, BATCH_BLOCKS):
         k = slice(start, min(start + BATCH_BLOCKS, n))
         count = k.stop - k.start
@@ -233,11 +237,51 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
             blocks = np.arange(count) if keep is None else np.flatnonzero(keep)
             data, offsets = _encode(store, topic, columns, int(blocks.size))
             pieces.append((data, offsets, blocks, order[topic]))
+        ended = (cut_blocks >= k.start) & (cut_blocks < k.stop)
+        if ended.any():
+            data, offsets = cuts
+            chosen = np.flatnonzero(ended)
+            sizes = np.diff(offsets)[chosen]
+            gathered = b''.join(data[offsets[i]:offsets[i + 1]] for i in chosen)
+            pieces.append((gathered, np.concatenate(([0], np.cumsum(sizes))),
+                           cut_blocks[chosen] - k.start, order['/pmc/cuts']))
         if start == 0:
             pieces.insert(0, (initial[0], initial[1], np.full(1, -1), order['/pmc/feed_override']))
         _write_batch(writer, topics, pieces, end_ns[k])
         if progress is not None:
             progress(k.stop, n)
+
+
+def _cuts(store: Any, run: CoreRun, experiment: Experiment, end_ns: IntArray
+          ) -> tuple[tuple[bytes, IntArray], IntArray]:
+    """The cut log's messages (bytes, offsets) and the block whose answer ended each cut: the
+    block ``debounce`` blocks after its last (:class:`turning_force.core.shopfloor.CutLog`).
+    The times are the bridge's: its clock's nanoseconds x 1e-9 at the blocks' ends (``end_ns``),
+    where the core loop's ``t0 + m dt`` may differ in the last bit."""
+    if not run.cuts:
+        return (b'', np.zeros(1, dtype=np.int64)), np.zeros(0, dtype=np.int64)
+    bridge = experiment.bridge
+    period_s = bridge.control_period_s
+    debounce = max(1, math.ceil(bridge.engage_time_s / period_s - 1e-9))
+    t_end = run.currents.t_end_s
+
+    def block_at(t_s: float) -> int:
+        return int(np.argmin(np.abs(t_end - t_s)))
+
+    records, last = [], []
+    for r in run.cuts:
+        first, end = block_at(r.start_s + period_s), block_at(r.end_s)
+        records.append(replace(r, start_s=int(end_ns[first]) * 1e-9 - period_s,
+                               end_s=int(end_ns[end]) * 1e-9))
+        last.append(end)
+    stamps = np.array([round(r.end_s * 1e9) for r in records], dtype=np.int64)
+    columns: dict[str, Any] = {**_stamp(stamps), 'tool': bridge.tool}
+    for name in ('index', 'start_s', 'end_s', 'duration_s', 'programmed_feed_s', 'max_force_n',
+                 'mean_force_n', 'min_override_pct', 'overload_events', 'breakage',
+                 'reachable_fraction', 'learned', 'complete'):
+        columns[name] = np.array([getattr(r, name) for r in records])
+    return (_encode(store, '/pmc/cuts', columns, len(records)),
+            np.array(last, dtype=np.int64) + debounce)
 
 
 def _details(details: dict[int, str], k: slice) -> Any:
