@@ -1,5 +1,6 @@
 """The recorder's disk work on a writer thread (SessionWriter ``background``): the same session
-as writing on the caller's thread, and a failing disk still said, once, as the one BagError."""
+as writing on the caller's thread, and a failing disk still said, once, as the one BagError;
+on sim time, messages that come before the clock has begun logged when it has."""
 
 from __future__ import annotations
 
@@ -7,10 +8,16 @@ import subprocess
 import sys
 from pathlib import Path
 
+from builtin_interfaces.msg import Time
+from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.serialization import serialize_message
 from rosbags.highlevel import AnyReader
+from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64
+from turning_force_msgs.msg import ForceEstimate
 
+from turning_force.nodes.session_recorder import SessionRecorderNode
 from turning_force.session.bag import SessionWriter, typestore
 
 TOPICS = {'/a': 'std_msgs/msg/Float64', '/b': 'std_msgs/msg/Float64'}
@@ -82,3 +89,53 @@ def test_a_full_disk_on_the_writer_thread_is_one_bag_error(tmp_path):
     assert said[0][1] == (f'{bag}: cannot write the session: File too large; what was written '
                           f'before stays readable (`turning-force repair {bag}`)')
     assert 'Traceback' not in run.stderr
+
+
+def recorder_on_sim_time(context, executor, path: Path) -> SessionRecorderNode:
+    recorder = SessionRecorderNode(context=context, parameter_overrides=[
+        Parameter('output_dir', value=str(path)), Parameter('capture_parameters', value=False),
+        Parameter('use_sim_time', value=True)])
+    executor.add_node(recorder)
+    return recorder
+
+
+def test_messages_before_sim_time_begins_are_logged_when_it_does(context, executor, spin_until,
+                                                                 tmp_path):
+    # A lock-step graph's first block: the simulator publishes /clock (the block's end, 10 ms)
+    # and the block's messages, which may reach the recorder before the /clock does. They are
+    # logged at 10 ms, not at 0, in the order they came.
+    recorder = recorder_on_sim_time(context, executor, tmp_path / 'session')
+    probe = Node('probe', context=context)
+    executor.add_node(probe)
+    estimates = probe.create_publisher(ForceEstimate, 'force/estimate', 10)
+    clock = probe.create_publisher(Clock, '/clock', 10)
+    assert spin_until(lambda: estimates.get_subscription_count() == 1
+                      and clock.get_subscription_count() >= 1)
+    estimates.publish(ForceEstimate(force_n=1.0))
+    assert spin_until(lambda: recorder.diagnostics.received_count('/force/estimate') == 1)
+    assert recorder.writer.counts.get('/force/estimate', 0) == 0   # held: no time yet
+    clock.publish(Clock(clock=Time(sec=0, nanosec=10_000_000)))
+    assert spin_until(lambda: recorder.get_clock().now().nanoseconds == 10_000_000)
+    estimates.publish(ForceEstimate(force_n=2.0))
+    assert spin_until(lambda: recorder.writer.counts.get('/force/estimate', 0) == 2)
+    recorder.close()
+    got = [(t, m.force_n) for _, t, m in decoded(tmp_path / 'session')]
+    assert got == [(10_000_000, 1.0), (10_000_000, 2.0)]
+
+
+def test_messages_are_kept_when_sim_time_never_begins(context, executor, spin_until, tmp_path):
+    recorder = recorder_on_sim_time(context, executor, tmp_path / 'session')
+    probe = Node('probe', context=context)
+    executor.add_node(probe)
+    estimates = probe.create_publisher(ForceEstimate, 'force/estimate', 10)
+    assert spin_until(lambda: estimates.get_subscription_count() == 1)
+    estimates.publish(ForceEstimate(force_n=3.0))
+    assert spin_until(lambda: recorder.diagnostics.received_count('/force/estimate') == 1)
+    recorder.close()
+    assert [(t, m.force_n) for _, t, m in decoded(tmp_path / 'session')] == [(0, 3.0)]
+
+
+def decoded(path: Path) -> list[tuple[str, int, object]]:
+    with AnyReader([path], default_typestore=typestore()) as reader:
+        return [(c.topic, t, reader.deserialize(raw, c.msgtype))
+                for c, t, raw in reader.messages()]

@@ -110,6 +110,7 @@ class SessionRecorderNode(Node):
         self.failure: BagError | None = None   # why recording stopped, if a write failed
         # The receipt time of every message, without a clock call per message.
         self._time = NodeTime(self)
+        self._early: list[tuple[str, bytes]] = []   # received before sim time began
         self.create_timer(1.0, timer_callback(self._check_writer))
         for topic, cls in GRAPH_TOPICS.items():
             name = self.resolve_topic_name(topic)
@@ -150,16 +151,31 @@ class SessionRecorderNode(Node):
 
     def _callback(self, name: str) -> Any:
         write, received, stamp_ns = self.writer.write, self.diagnostics.received, self._time.ns
+        sim_time = bool(self.get_parameter('use_sim_time').value)
 
         def record(data: bytes) -> None:
-            if not self._closed:
-                try:
-                    write(name, stamp_ns(), data)
-                except BagError as exc:
-                    self._failed(exc)
-                    return
-                received(name)
+            if self._closed:
+                return
+            ns = stamp_ns()
+            try:
+                if sim_time and ns == 0:
+                    # Sim time has not started here: the first block's messages can come before
+                    # the /clock that began it. They are logged when the clock has begun.
+                    self._early.append((name, data))
+                else:
+                    if self._early:
+                        self._write_early(ns)
+                    write(name, ns, data)
+            except BagError as exc:
+                self._failed(exc)
+                return
+            received(name)
         return record
+
+    def _write_early(self, ns: int) -> None:
+        early, self._early = self._early, []
+        for name, data in early:
+            self.writer.write(name, ns, data)
 
     def _check_writer(self) -> None:
         """A failure of the writer thread said within a second, messages coming or not; the
@@ -191,6 +207,8 @@ class SessionRecorderNode(Node):
             if self._captured and not self._parameters_given:
                 self.writer.set_custom_data(CUSTOM_PARAMETERS, dumps(self._captured))
             try:
+                if self._early:   # sim time never began: logged where it stands
+                    self._write_early(0)
                 self.writer.close()
             except BagError as exc:   # the disk filled: the summary could not be written
                 self.failure = exc
