@@ -494,7 +494,7 @@ def _rows_into(jit: Any, rows: FloatArray, trace: ChainTrace, first: int,
     """The kernel's chain rows of blocks ``first`` .. ``first + len(rows) - 1`` into the
     trace's arrays (the inputs the decisions saw are not the kernel's business: the caller
     fills them); the estimate's details in the reference's words."""
-    from turning_force.core.kernel.components import detail_text
+    from turning_force.core.kernel.components import detail_text, rezeroed_text
 
     r = rows
     sl = slice(first, first + len(rows))
@@ -518,9 +518,16 @@ def _rows_into(jit: Any, rows: FloatArray, trace: ChainTrace, first: int,
     trace.alarm[sl] = r[:, jit.CH_ALARM] != 0.0
     trace.stop_request[sl] = r[:, jit.CH_STOP] != 0.0
     trace.tracking_error_n[sl] = np.where(acted, r[:, jit.CH_ERR], np.nan)
-    for k in np.flatnonzero(r[:, jit.CH_DCODE] != jit.D_NONE).tolist():
+    codes = r[:, jit.CH_DCODE]
+    details = trace.estimate_detail
+    # In air the friction re-zero's line is on nearly every block: its text needs no block.
+    rezeroed = np.flatnonzero(codes == jit.D_REZEROED)
+    for k, scale in zip((rezeroed + first).tolist(), r[rezeroed, jit.CH_DVAL].tolist(),
+                        strict=True):
+        details[k] = rezeroed_text(scale)
+    for k in np.flatnonzero((codes != jit.D_NONE) & (codes != jit.D_REZEROED)).tolist():
         row = r[k]
-        trace.estimate_detail[first + k] = detail_text(
+        details[first + k] = detail_text(
             settings, currents.block(first + k), int(row[jit.CH_DCODE]),
             float(row[jit.CH_DVAL]), float(row[jit.CH_DVAL + 1]))
 

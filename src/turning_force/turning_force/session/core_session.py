@@ -178,6 +178,7 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
         'detail': 'inactive: programmed feed', 'program_enable': -1, 'threading': -1,
         'operator_dial_pct': np.nan}, 1)
     cuts, cut_blocks = _cuts(store, run, experiment, end_ns)
+    details = _Details(chain.estimate_detail)
     for start in range(0, n, BATCH_BLOCKS):
         k = slice(start, min(start + BATCH_BLOCKS, n))
         count = k.stop - k.start
@@ -211,7 +212,7 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
                                  'current_q_a': chain.current_q_a[k],
                                  'friction_current_a': chain.friction_current_a[k],
                                  'status': chain.estimate_status[k],
-                                 'detail': _details(chain.estimate_detail, k)}, None),
+                                 'detail': details.column(k)}, None),
             '/control/feed_command': ({
                 **_stamp(last), 'header.frame_id': FRAME,
                 'override_pct': chain.requested_override_pct[k],
@@ -284,15 +285,22 @@ def _cuts(store: Any, run: CoreRun, experiment: Experiment, end_ns: IntArray
             np.array(last, dtype=np.int64) + debounce)
 
 
-def _details(details: dict[int, str], k: slice) -> Any:
-    """The estimate's details of blocks ``k`` (by block, where not empty) as a column."""
-    inside = [b for b in details if k.start <= b < k.stop]
-    if not inside:
-        return ''
-    column = np.zeros(k.stop - k.start, dtype=f'S{max(len(details[b].encode()) for b in inside)}')
-    for b in inside:
-        column[b - k.start] = details[b].encode()
-    return column
+class _Details:
+    """The estimate's details (by block, where not empty) as a column per batch of blocks, in
+    time linear in the details (in air, the friction re-zero's line is on nearly every block)."""
+
+    def __init__(self, details: dict[int, str]) -> None:
+        self.blocks = np.array(sorted(details), dtype=np.int64)
+        self.text = [details[b].encode() for b in self.blocks.tolist()]
+
+    def column(self, k: slice) -> Any:
+        lo, hi = np.searchsorted(self.blocks, (k.start, k.stop))
+        if lo == hi:
+            return ''
+        inside = self.text[lo:hi]
+        column = np.zeros(k.stop - k.start, dtype=f'S{max(len(t) for t in inside)}')
+        column[self.blocks[lo:hi] - k.start] = inside
+        return column
 
 
 def _encode(store: Any, topic: str, columns: dict[str, Any], count: int

@@ -125,7 +125,12 @@ def detail_text(settings: EstimatorSettings, block: CurrentBlock, code: int, a: 
         return f'force filter overflowed (|i| up to {a:.3g} A)'
     if code == K.D_SATURATED:
         return f'phase current {a:.3g} A beyond the sensor range'
-    return f'friction re-zeroed in air: {a:.3f} x calibrated'
+    return rezeroed_text(a)
+
+
+def rezeroed_text(scale: float) -> str:
+    """The reference's line for a friction re-zero (``K.D_REZEROED``) to ``scale``."""
+    return f'friction re-zeroed in air: {scale:.3f} x calibrated'
 
 
 class CompiledController:
