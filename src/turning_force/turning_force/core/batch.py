@@ -295,7 +295,7 @@ def cut_records(chain: ChainTrace, currents: CurrentArrays,
     if n == 0:
         return []
     period_s = bridge.control_period_s
-    debounce = max(1, math.ceil(bridge.engage_time_s / period_s - 1e-9))
+    debounce = bridge.debounce_blocks(period_s)
     status = chain.estimate_status
     force = chain.estimated_force_n
     # The blocks whose estimate the gate judged (ShopFloor.observe): valid and finite.

@@ -168,6 +168,11 @@ class ShopFloorSettings(Settings):
         0.9, 'The reference a learning cut sets: this fraction of its learned force level',
         low=0.0, low_open=True, high=2.0)
 
+    def debounce_blocks(self, period_s: float) -> int:
+        """The control blocks the force must stay past a threshold for the cut detector to
+        engage (or exit): ``engage_time_s`` in blocks of ``period_s``, at least one."""
+        return max(1, math.ceil(self.engage_time_s / period_s - 1e-9))
+
     def check(self) -> None:
         if self.exit_force_n >= self.engage_force_n:
             self.fail('exit_force_n', f'not below engage_force_n ({self.engage_force_n:g} N): '
@@ -450,7 +455,7 @@ class ShopFloor:
         self.period_s = period_s
         self.inputs = NO_INPUTS
         self.engaged = False
-        self._debounce = max(1, math.ceil(settings.engage_time_s / period_s - 1e-9))
+        self._debounce = settings.debounce_blocks(period_s)
         self.log = CutLog(settings.tool, period_s, self._debounce)
         self._run = 0                       # consecutive blocks past the threshold
         self._cut_blocks = 0                # blocks since engagement

@@ -27,7 +27,6 @@ the reason is there). The signals the reader and replay take are equal.
 from __future__ import annotations
 
 import contextlib
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -263,18 +262,14 @@ def _cuts(store: Any, run: CoreRun, experiment: Experiment, end_ns: IntArray
         return (b'', np.zeros(1, dtype=np.int64)), np.zeros(0, dtype=np.int64)
     bridge = experiment.bridge
     period_s = bridge.control_period_s
-    debounce = max(1, math.ceil(bridge.engage_time_s / period_s - 1e-9))
+    # The blocks a cut's times name (t_end_s, increasing): each time is a block's end to the
+    # last bit, half a period from the next.
     t_end = run.currents.t_end_s
-
-    def block_at(t_s: float) -> int:
-        return int(np.argmin(np.abs(t_end - t_s)))
-
-    records, last = [], []
-    for r in run.cuts:
-        first, end = block_at(r.start_s + period_s), block_at(r.end_s)
-        records.append(replace(r, start_s=int(end_ns[first]) * 1e-9 - period_s,
-                               end_s=int(end_ns[end]) * 1e-9))
-        last.append(end)
+    firsts = np.searchsorted(t_end, [r.start_s + 0.5 * period_s for r in run.cuts])
+    last = np.searchsorted(t_end, [r.end_s - 0.5 * period_s for r in run.cuts])
+    records = [replace(r, start_s=int(end_ns[first]) * 1e-9 - period_s,
+                       end_s=int(end_ns[end]) * 1e-9)
+               for r, first, end in zip(run.cuts, firsts.tolist(), last.tolist(), strict=True)]
     stamps = np.array([round(r.end_s * 1e9) for r in records], dtype=np.int64)
     columns: dict[str, Any] = {**_stamp(stamps), 'tool': bridge.tool}
     for name in ('index', 'start_s', 'end_s', 'duration_s', 'programmed_feed_s', 'max_force_n',
@@ -282,7 +277,7 @@ def _cuts(store: Any, run: CoreRun, experiment: Experiment, end_ns: IntArray
                  'reachable_fraction', 'learned', 'complete'):
         columns[name] = np.array([getattr(r, name) for r in records])
     return (_encode(store, '/pmc/cuts', columns, len(records)),
-            np.array(last, dtype=np.int64) + debounce)
+            last.astype(np.int64) + bridge.debounce_blocks(period_s))
 
 
 class _Details:

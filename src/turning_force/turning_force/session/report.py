@@ -55,7 +55,7 @@ def cut_table(session: Session) -> list[CutRecord]:
     first = int(np.flatnonzero(~engaged)[-1] + 1) if np.any(~engaged) else 0
     if session.experiment is not None and first > 0:   # the detector's debounce: the cut began
         bridge = session.experiment.bridge                # that many blocks before it said so
-        debounce = max(1, math.ceil(bridge.engage_time_s / bridge.control_period_s - 1e-9))
+        debounce = bridge.debounce_blocks(bridge.control_period_s)
         first = max(first - (debounce - 1), 0)
     if cuts and cuts[-1].end_s >= session.t_s[first]:
         return cuts    # the bridge closed it (deactivated before the recording ended)
