@@ -58,13 +58,16 @@ lint: setup
 	$(VENV)/bin/ruff check src test
 	$(VENV)/bin/mypy
 
-# make test: every test but the slow ones (under 10 minutes on 2 cores, set-up included);
+# make test: every test but the slow ones (under 5 minutes on 2 cores, set-up included);
 # make test-all: all of them (the colcon workspace, every row of the robustness matrix).
+# pytest-xdist spreads them over JOBS processes, each on a DDS domain of its own.
+JOBS ?= 2
+
 test: lint
-	$(PY) -m pytest -q -m 'not slow' test
+	$(PY) -m pytest -q -n $(JOBS) -m 'not slow' test
 
 test-all: lint
-	$(PY) -m pytest -q test
+	$(PY) -m pytest -q -n $(JOBS) test
 
 # make bench: issue 9's table, old beside new, in one run (about ten minutes);
 # make bench-all: every benchmark in test/bench/ (each prints its own details).

@@ -5,6 +5,7 @@ never touches ROS, does not load it."""
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -13,6 +14,12 @@ from typing import Any
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+
+# pytest-xdist runs the suite in several processes: each gets a DDS domain of its own (set before
+# any test imports rclpy), so that one worker's graph never hears another's.
+_WORKER = os.environ.get('PYTEST_XDIST_WORKER', '')
+if _WORKER.startswith('gw'):
+    os.environ['ROS_DOMAIN_ID'] = str(40 + int(_WORKER[2:]))
 
 
 @pytest.fixture(scope='session')

@@ -102,3 +102,36 @@ def test_depth_profile_steps_and_taper():
     taper = DepthProfile((0.0, 1.0, 9.0), (1.0, 1.0, 2.0), 'linear')
     np.testing.assert_allclose(taper.at(np.array([0.5, 5.0, 10.0])), [1.0, 1.5, 2.0])
     assert taper.change_times_s() == (1.0,)
+
+
+def test_feed_reading_noise_leaves_the_truth_alone():
+    # The DAQ's feed reading (an encoder differentiated) carries noise of the set standard
+    # deviation; the feed the cut sees does not. 10,000 samples: the sample deviation's own
+    # spread is sigma / sqrt(2 n) = 0.7 %, so 3 % is more than four of it.
+    quiet = PlantSettings(depth_times_s=(0.0,), depth_mm=(1.0,), **QUIET)
+    noisy = PlantSettings(depth_times_s=(0.0,), depth_mm=(1.0,), feed_noise_mm_min=2.0, **QUIET)
+    _, cat_q = run(quiet, [100.0] * 1000)
+    _, cat_n = run(noisy, [100.0] * 1000)
+    read = lambda b: b.currents.feed_rate_mm_min  # noqa: E731
+    np.testing.assert_array_equal(cat_n(lambda b: b.force_n), cat_q(lambda b: b.force_n))
+    np.testing.assert_array_equal(cat_n(lambda b: b.currents.phase_u_a),
+                                  cat_q(lambda b: b.currents.phase_u_a))
+    assert np.std(cat_n(read) - cat_q(read)) == pytest.approx(2.0, rel=0.03)
+
+
+@pytest.mark.parametrize('noise', [
+    {'current_noise_a': 0.05},
+    {'current_noise_a': 0.05, 'feed_noise_mm_min': 1.0},
+    {'current_noise_a': 0.0, 'feed_noise_mm_min': 1.0},
+    {'current_noise_a': 0.05, 'force_noise_fraction': 0.02},
+    {'current_noise_a': 0.05, 'force_noise_fraction': 0.02, 'feed_noise_mm_min': 1.0},
+])
+def test_noise_drawn_in_stretches_equals_noise_drawn_block_by_block(noise):
+    # The compiled loop draws a stretch of blocks' noise at once, a node one block at a time:
+    # the same seed must give the same numbers either way.
+    s = PlantSettings(**noise)
+    whole = LathePlant(s, 10).draw_noise(7)
+    one = LathePlant(s, 10)
+    parts = [one.draw_noise(1) for _ in range(7)]
+    for j, drawn in enumerate(whole):
+        np.testing.assert_array_equal(drawn, np.concatenate([p[j] for p in parts]))

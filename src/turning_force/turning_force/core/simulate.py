@@ -189,7 +189,7 @@ def _run_compiled(plant: LathePlant, chain: ControlChain, applied: float, out: C
     from turning_force.core.kernel import pack
 
     jit = kernel.load()
-    pp, ps, times, depths = pack.plant_arrays(plant)
+    pp, ps, times, depths = plant.arrays
     settings = chain.estimator.settings
     ep = pack.estimator_params(settings)
     es = pack.estimator_state(chain.estimator, ep)
@@ -199,36 +199,18 @@ def _run_compiled(plant: LathePlant, chain: ControlChain, applied: float, out: C
     clevels = pack.levels(controller._table)
     gp, gs, glevels = pack.gate_arrays(chain.gate)
     last = np.array([out.override_pct, out.sliding_variable, float(out.reachable)])
-    s, n = plant.settings, plant.samples_per_block
-    rng = plant._rng
-    empty = np.empty(0)
     for start in range(first, steps, CHUNK_BLOCKS):
         end = min(start + CHUNK_BLOCKS, steps)
-        blocks = end - start
-        noise_u = noise_v = noise_f = empty
-        # The plant's draws, in its order (LathePlant.step): per block the force noise, then
-        # u's and v's sensor noise.
-        if s.force_noise_fraction > 0:
-            f_parts, u_parts, v_parts = [], [], []
-            for _ in range(blocks):
-                f_parts.append(rng.uniform(-1.0, 1.0, n))
-                if s.current_noise_a > 0:
-                    u_parts.append(rng.normal(0.0, s.current_noise_a, n))
-                    v_parts.append(rng.normal(0.0, s.current_noise_a, n))
-            noise_f = np.concatenate(f_parts)
-            if u_parts:
-                noise_u, noise_v = np.concatenate(u_parts), np.concatenate(v_parts)
-        elif s.current_noise_a > 0:
-            drawn = rng.normal(0.0, s.current_noise_a, (blocks, 2, n))
-            noise_u = np.ascontiguousarray(drawn[:, 0, :]).ravel()
-            noise_v = np.ascontiguousarray(drawn[:, 1, :]).ravel()
+        noise_u, noise_v, noise_f, noise_fr = plant.draw_noise(end - start)
         if keeper is None:
-            applied = jit.run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, ep, es, cp,
-                                   cs, clevels, gp, gs, glevels, start, end, applied, last, rows)
+            applied = jit.run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr,
+                                   ep, es, cp, cs, clevels, gp, gs, glevels, start, end, applied,
+                                   last, rows)
         else:
             t0, u, v, angle, feed, chain_rows = keeper.kernel_arrays()
-            applied = jit.run_core_kept(pp, ps, times, depths, noise_u, noise_v, noise_f, ep,
-                                        es, cp, cs, clevels, gp, gs, glevels, start, end,
-                                        applied, last, rows, t0, u, v, angle, feed, chain_rows)
+            applied = jit.run_core_kept(pp, ps, times, depths, noise_u, noise_v, noise_f,
+                                        noise_fr, ep, es, cp, cs, clevels, gp, gs, glevels,
+                                        start, end, applied, last, rows, t0, u, v, angle, feed,
+                                        chain_rows)
     if keeper is not None:
         keeper.kernel_done(first)

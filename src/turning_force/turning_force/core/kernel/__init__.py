@@ -88,7 +88,8 @@ KNOWN: Mapping[str, frozenset[str]] = {
         'ball_screw_pitch_mm',
         # The dynamometer reads the force beside the plant (lathe_sim's force/measured, its own
         # random numbers); the dial's script matters only where the dial is wired.
-        'dynamometer', 'dynamometer_noise_n', 'operator_dial_times_s', 'operator_dial_pct')),
+        'dynamometer', 'dynamometer_noise_n', 'operator_dial_times_s', 'operator_dial_pct',
+        'feed_noise_mm_min')),
 }
 # The laws the kernel runs (force_controller.controller).
 LAWS = frozenset(('smc', 'adaptive', 'adaptive_smc', 'adaptive_pp', 'pi', 'staircase'))
@@ -106,7 +107,7 @@ NEUTRAL: Mapping[str, Mapping[str, Any]] = {
         'teach_file': ''},
     'lathe_sim': {
         'program_enable_spans_s': (0.0, 0.0), 'threading_spans_s': (0.0, 0.0),
-        'operator_dial_wired': False, 'feed_noise_mm_min': 0.0},
+        'operator_dial_wired': False},
 }
 
 _lock = threading.Lock()

@@ -34,8 +34,8 @@ P_N, P_DT, P_FEED_RATE, P_RPM, P_K, P_G, P_PROCESS, P_NOISE, P_FNOISE = range(9)
 P_FAULT_START, P_FAULT_DUR, P_ANGLE_C, P_PITCH = range(9, 13)
 P_FR_A, P_FR_B, P_FR_MIN, P_FR_MAX, P_MAP_OFF, P_MAP_PER = range(13, 19)
 P_SERVO_LEN, P_SB, P_SA = 19, 20, 23          # b and a: 3 slots each
-P_PB, P_PA, P_DELAY, P_LINEAR = 26, 28, 30, 31
-P_SIZE = 32
+P_PB, P_PA, P_DELAY, P_LINEAR, P_FEED_NOISE = 26, 28, 30, 31, 32
+P_SIZE = 33
 # plant state
 PS_POS, PS_K, PS_QIDX, PS_SZ, PS_PZ, PS_QUEUE = 0, 1, 2, 3, 5, 6
 
@@ -288,11 +288,22 @@ def depth_at(times: np.ndarray, depths: np.ndarray, linear: bool, t: float) -> f
 @njit(**_OPTIONS)
 def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.ndarray,
                override_pct: float, noise_u: np.ndarray, noise_v: np.ndarray,
-               noise_f: np.ndarray, lo: int, u: np.ndarray, v: np.ndarray,
-               angle: np.ndarray, feed_rate: np.ndarray, truth: np.ndarray) -> float:
-    """One block at ``override_pct``; the DAQ's arrays into u, v, angle, feed_rate; the force,
-    depth and feed [mm/rev] at the block's last sample into truth; returns the block's t0.
-    Noise samples are read from ``lo`` on (drawn in Python from the plant's own Generator)."""
+               noise_f: np.ndarray, noise_fr: np.ndarray, lo: int, u: np.ndarray,
+               v: np.ndarray, angle: np.ndarray, feed_rate: np.ndarray,
+               truth: np.ndarray) -> float:
+    """The lathe for one block at ``override_pct`` (the one source of the simulated plant:
+    :class:`turning_force.core.plant.LathePlant` steps it too).
+
+    override -> PMC dead time (a ring of ``P_DELAY`` samples) -> CNC servo (Park Eq. 2, first
+    order, or Hwang & Chen Eq. 1, second order; zero-order-hold coefficients in direct form II
+    transposed) -> feed [mm/rev] -> cutting force F = k d f^g through the process lag tau_c
+    (Park Eq. 1; Hwang & Chen Eq. 3) -> q-axis current (Park Eq. 26) plus friction (Park
+    Eq. 25) -> u, v phase currents at the rotor angle, plus sensor noise.
+
+    The DAQ's arrays into u, v, angle, feed_rate (the measured feed rate: ``noise_fr`` added
+    where ``P_FEED_NOISE``); the true force, depth and feed [mm/rev] of every sample into rows
+    0, 1 and 2 of ``truth`` (3, n); returns the block's t0. Noise samples are read from ``lo``
+    on (drawn in Python from the plant's own Generator)."""
     n = int(pp[P_N])
     dt = pp[P_DT]
     k = int(ps[PS_K])
@@ -361,10 +372,10 @@ def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.nda
         if pp[P_FAULT_DUR] > 0.0 and t >= pp[P_FAULT_START] and t < fault_end:
             pu = math.nan
             pv = math.nan
-        u[i], v[i], angle[i], feed_rate[i] = pu, pv, theta, fr
-        if i == n - 1:
-            ps[PS_POS] = position
-            truth[0], truth[1], truth[2] = force, depth, feed
+        measured = fr + noise_fr[lo + i] if pp[P_FEED_NOISE] > 0.0 else fr
+        u[i], v[i], angle[i], feed_rate[i] = pu, pv, theta, measured
+        truth[0, i], truth[1, i], truth[2, i] = force, depth, feed
+    ps[PS_POS] = position
     ps[PS_SZ], ps[PS_SZ + 1], ps[PS_PZ] = z0, z1, pz
     ps[PS_K] = k + n
     return float(k) * dt
@@ -1080,10 +1091,10 @@ def gate_decide(gp: np.ndarray, gs: np.ndarray, levels: np.ndarray, t: float,
 
 @njit('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-      'float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, float64, '
-      'float64[::1], float64[:, ::1])', **_OPTIONS)
-def run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, ep, es, cp, cs, clevels,
-             gp, gs, glevels, k0, k1, applied, last, trace):
+      'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, '
+      'float64, float64[::1], float64[:, ::1])', **_OPTIONS)
+def run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr, ep, es, cp, cs,
+             clevels, gp, gs, glevels, k0, k1, applied, last, trace):
     """Blocks k0 .. k1 - 1 of the core loop (plant -> estimator -> gate.on_estimate ->
     controller -> gate.on_command -> gate.decide), trace rows k0 .. k1 - 1; noise arrays start
     at block k0. ``last`` is the command that stands (pct, sliding, reachable). Returns the
@@ -1093,13 +1104,13 @@ def run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, ep, es, cp, cs, c
     u, v = np.empty(n), np.empty(n)
     angle, feed_rate = np.empty(n), np.empty(n)
     work = np.empty(2 * n)
-    truth = np.empty(3)
+    truth = np.empty((3, n))
     out = np.empty(4)
     decision = np.empty(2)
     for k in range(k0, k1):
         lo = (k - k0) * n
-        t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, lo,
-                        u, v, angle, feed_rate, truth)
+        t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, noise_fr,
+                        lo, u, v, angle, feed_rate, truth)
         t_end = t0 + n * dt
         status = estimator_update(ep, es, t0, dt, u, v, angle, feed_rate, work)
         force, rate = es[ES_F], es[ES_R]
@@ -1110,9 +1121,9 @@ def run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, ep, es, cp, cs, c
             gs[GS_REQ], gs[GS_CMD_T] = out[OUT_PCT], t_end
         gate_decide(gp, gs, glevels, t_end, decision)
         row = k
-        trace[row, 0], trace[row, 1], trace[row, 2] = t_end, truth[0], force
-        trace[row, 3], trace[row, 4], trace[row, 5] = rate, cp[C_REF], truth[1]
-        trace[row, 6], trace[row, 7], trace[row, 8] = truth[2], last[0], applied
+        trace[row, 0], trace[row, 1], trace[row, 2] = t_end, truth[0, n - 1], force
+        trace[row, 3], trace[row, 4], trace[row, 5] = rate, cp[C_REF], truth[1, n - 1]
+        trace[row, 6], trace[row, 7], trace[row, 8] = truth[2, n - 1], last[0], applied
         trace[row, 9], trace[row, 10] = last[1], last[2]
         applied = decision[0]
     return applied
@@ -1142,25 +1153,25 @@ def _chain_row(rows: np.ndarray, k: int, es: np.ndarray, status: int, acted: boo
 
 @njit('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-      'float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, float64, '
-      'float64[::1], float64[:, ::1], float64[::1], float64[:, ::1], float64[:, ::1], '
+      'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, '
+      'float64, float64[::1], float64[:, ::1], float64[::1], float64[:, ::1], float64[:, ::1], '
       'float64[:, ::1], float64[:, ::1], float64[:, ::1])', **_OPTIONS)
-def run_core_kept(pp, ps, times, depths, noise_u, noise_v, noise_f, ep, es, cp, cs, clevels,
-                  gp, gs, glevels, k0, k1, applied, last, trace, t0s, u, v, angle, feed_rate,
-                  rows):
+def run_core_kept(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr, ep, es, cp, cs,
+                  clevels, gp, gs, glevels, k0, k1, applied, last, trace, t0s, u, v, angle,
+                  feed_rate, rows):
     """:func:`run_core`, keeping every block: its first stamp into t0s[k], its samples into
     row k of u, v, angle and feed_rate, the chain's row (CH_*) into rows[k]."""
     n = int(pp[P_N])
     dt = pp[P_DT]
     work = np.empty(2 * n)
-    truth = np.empty(3)
+    truth = np.empty((3, n))
     out = np.full(4, math.nan)
     decision = np.empty(2)
     for k in range(k0, k1):
         lo = (k - k0) * n
         uk, vk, ak, fk = u[k], v[k], angle[k], feed_rate[k]
-        t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, lo,
-                        uk, vk, ak, fk, truth)
+        t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, noise_fr,
+                        lo, uk, vk, ak, fk, truth)
         t0s[k] = t0
         t_end = t0 + n * dt
         status = estimator_update(ep, es, t0, dt, uk, vk, ak, fk, work)
@@ -1173,9 +1184,9 @@ def run_core_kept(pp, ps, times, depths, noise_u, noise_v, noise_f, ep, es, cp, 
             gs[GS_REQ], gs[GS_CMD_T] = out[OUT_PCT], t_end
         gate_decide(gp, gs, glevels, t_end, decision)
         _chain_row(rows, k, es, status, acted, out, cp, gp, gs, decision)
-        trace[k, 0], trace[k, 1], trace[k, 2] = t_end, truth[0], force
-        trace[k, 3], trace[k, 4], trace[k, 5] = rate, cp[C_REF], truth[1]
-        trace[k, 6], trace[k, 7], trace[k, 8] = truth[2], last[0], applied
+        trace[k, 0], trace[k, 1], trace[k, 2] = t_end, truth[0, n - 1], force
+        trace[k, 3], trace[k, 4], trace[k, 5] = rate, cp[C_REF], truth[1, n - 1]
+        trace[k, 6], trace[k, 7], trace[k, 8] = truth[2, n - 1], last[0], applied
         trace[k, 9], trace[k, 10] = last[1], last[2]
         applied = decision[0]
     return applied
@@ -1216,6 +1227,16 @@ def replay_blocks(ep, es, cp, cs, clevels, gp, gs, glevels, t0s, dt, u, v, angle
         gate_decide(gp, gs, glevels, t_end, decision)
         _chain_row(rows, k, es, status, acted, out, cp, gp, gs, decision)
     return change
+
+
+@njit('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64, '
+      'float64[::1], float64[::1], float64[::1], float64[::1], int64, float64[::1], '
+      'float64[::1], float64[::1], float64[::1], float64[:, ::1])', **_OPTIONS)
+def plant_block(pp, ps, times, depths, override_pct, noise_u, noise_v, noise_f, noise_fr, lo,
+                u, v, angle, feed_rate, truth):
+    """:func:`plant_step` from Python (:class:`turning_force.core.plant.LathePlant`)."""
+    return plant_step(pp, ps, times, depths, override_pct, noise_u, noise_v, noise_f, noise_fr,
+                      lo, u, v, angle, feed_rate, truth)
 
 
 @njit('int64(float64[::1], float64[::1], float64, float64, float64[::1], float64[::1], '

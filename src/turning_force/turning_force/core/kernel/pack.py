@@ -1,5 +1,5 @@
 """The reference objects as the kernel's arrays: parameters and state, read from the live
-Python objects (:class:`LathePlant`, :class:`ForceEstimator`, the controllers,
+Python objects (:class:`ForceEstimator`, the controllers,
 :class:`OverrideGate`), so that a run can start in Python and go on in the kernel at any block
 with the same numbers. Reading their private fields is deliberate: this module is the one
 place that knows both sides, and the kernel-equals-reference tests hold it to them."""
@@ -30,58 +30,16 @@ from turning_force.core.estimation import (
 from turning_force.core.kernel import jit as K
 from turning_force.core.loop import ControlChain
 from turning_force.core.overrides import OverrideTable
-from turning_force.core.plant import LathePlant
 from turning_force.core.pmc import OverrideGate
 
 __all__ = ['chain_arrays', 'controller_params', 'controller_state', 'estimator_params',
-           'estimator_state', 'gate_arrays', 'levels', 'plant_arrays', 'set_filter']
+           'estimator_state', 'gate_arrays', 'levels', 'set_filter']
 
 FloatArray = npt.NDArray[np.float64]
 
 
 def levels(table: OverrideTable) -> FloatArray:
     return np.array(table.levels_pct, dtype=np.float64)
-
-
-# --- plant ----------------------------------------------------------------------------------
-
-def plant_arrays(plant: LathePlant) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """(params, state, depth times, depths) of a plant, at its current block."""
-    s = plant.settings
-    p = np.zeros(K.P_SIZE)
-    p[K.P_N], p[K.P_DT] = plant.samples_per_block, plant._dt
-    p[K.P_FEED_RATE], p[K.P_RPM] = s.programmed_feed_rate_mm_min, s.spindle_speed_rpm
-    p[K.P_K], p[K.P_G] = s.specific_cutting_force_n_mm2, s.cutting_exponent
-    p[K.P_PROCESS] = plant._process is not None
-    p[K.P_NOISE], p[K.P_FNOISE] = s.current_noise_a, s.force_noise_fraction
-    p[K.P_FAULT_START], p[K.P_FAULT_DUR] = s.sensor_fault_start_s, s.sensor_fault_duration_s
-    p[K.P_ANGLE_C], p[K.P_PITCH] = 2.0 * math.pi * s.pole_pairs, s.ball_screw_pitch_mm
-    f, m = plant._friction, plant._map
-    p[K.P_FR_A], p[K.P_FR_B] = f.a_a_per_mm_min2, f.b_a
-    p[K.P_FR_MIN], p[K.P_FR_MAX] = f.min_feed_mm_min, f.max_feed_mm_min
-    p[K.P_MAP_OFF], p[K.P_MAP_PER] = m.offset_a, m.per_force_a_n
-    servo = plant._servo
-    if servo.a[0] != 1.0 or servo.b.size != servo.a.size or servo.a.size not in (2, 3):
-        raise ValueError(f'servo filter {servo.b!r} / {servo.a!r}: not one the kernel runs')
-    p[K.P_SERVO_LEN] = servo.a.size
-    p[K.P_SB:K.P_SB + servo.b.size] = servo.b
-    p[K.P_SA:K.P_SA + servo.a.size] = servo.a
-    delay = plant._pending_mm_min.size
-    p[K.P_DELAY] = delay
-    p[K.P_LINEAR] = s.depth_interpolation == 'linear'
-    state = np.zeros(K.PS_QUEUE + delay)
-    state[K.PS_POS], state[K.PS_K] = plant._position_mm, plant._k
-    state[K.PS_SZ:K.PS_SZ + servo.zi.size] = servo.zi
-    state[K.PS_QUEUE:] = plant._pending_mm_min
-    process = plant._process
-    if process is not None:
-        if process.a.size != 2 or process.a[0] != 1.0:
-            raise ValueError(f'process filter {process.a!r}: not first order')
-        p[K.P_PB:K.P_PB + 2], p[K.P_PA:K.P_PA + 2] = process.b, process.a
-        state[K.PS_PZ] = process.zi[0]
-    profile = plant._profile
-    return (p, state, np.asarray(profile.times_s, dtype=np.float64),
-            np.asarray(profile.depth_mm, dtype=np.float64))
 
 
 # --- estimator ------------------------------------------------------------------------------
