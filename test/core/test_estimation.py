@@ -259,3 +259,57 @@ def test_no_re_zero_while_cutting_or_when_switched_off():
     for block in blocks_of(plant, [100.0] * 200):
         cutting.update(block.currents)
     assert cutting.friction_scale == 1.0
+
+
+def _uniform(t0=0.0, n=10, dt=1e-3, u=1.0, v=-0.5, feed=60.0):
+    return CurrentBlock(t0, dt, np.full(n, u), np.full(n, v), np.linspace(0.0, 1.0, n),
+                        np.full(n, feed))
+
+
+def test_every_problem_is_named_and_the_last_good_force_kept():
+    # One block for each problem the estimator names, in turn: the status and the one-line
+    # detail say which, the force repeats the last good one (finite), and each refusal of a
+    # running filter restarts it.
+    settings = EstimatorSettings(rezero_after_s=0.01, rezero_below_n=200.0)
+    estimator = ForceEstimator(settings)
+    invalid, ok, saturated = (EstimateStatus.INVALID_INPUT, EstimateStatus.OK,
+                              EstimateStatus.SATURATED)
+    cases = [
+        (_uniform(0.0), ok, ''),
+        (_uniform(0.01), ok, 're-zeroed'),
+        (CurrentBlock(0.02, 1e-3, np.ones(10), np.ones(9), np.ones(10), np.ones(10)), invalid,
+         'array lengths [10, 9, 10, 10] differ or are empty'),
+        (_uniform(0.02), ok, 're-zeroed'),
+        (_uniform(0.03, dt=-1.0), invalid, 'sample period -1.0 s is not a positive number'),
+        (_uniform(0.03, u=math.nan), invalid, '10 non-finite samples'),
+        (_uniform(0.03), ok, 're-zeroed'),
+        (_uniform(0.04, dt=2e-3), invalid, 'sample period changed from 0.001 s to 0.002 s'),
+        (_uniform(math.inf), invalid, 'stamp inf s is not finite'),
+        (_uniform(0.005), invalid, 'stamp 0.005 s is not after the previous 0.03 s'),
+        (_uniform(50.0), invalid, 'stamp 50.0 s jumps 49.96 s past the previous block '
+                                '(max_stamp_jump_s 1)'),
+        (_uniform(0.04, u=100.0), invalid, 'phase current 100 A is beyond 2 x the sensor range '
+                                         '(30 A): not a reading'),
+        (_uniform(0.05, u=45.0), saturated, 'phase current 45 A beyond the sensor range'),
+    ]
+    restarts = 0
+    last_good = None
+    for block, status, detail in cases:
+        estimate = estimator.update(block)
+        assert estimate.status == status, detail
+        assert detail in estimate.detail
+        assert math.isfinite(estimate.force_n)
+        if status == invalid:
+            assert estimate.force_n == last_good.force_n
+            restarts += 1 if previous_ok else 0
+        else:
+            last_good = estimate
+        previous_ok = status != invalid
+        assert estimator.restarts == restarts
+    # An absurd current map (1e-306 A per newton) overflows the filter: refused, every time.
+    absurd = ForceEstimator(EstimatorSettings(current_per_force_a_n=1e-306))
+    for k in range(4):
+        estimate = absurd.update(_uniform(0.1 * k, u=(-1.0) ** k * 50.0, v=(-1.0) ** k * 20.0))
+        assert estimate.status == invalid
+        assert estimate.detail == 'force filter overflowed (|i| up to 50 A)'
+        assert math.isfinite(estimate.force_n)

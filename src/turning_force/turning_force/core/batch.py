@@ -494,7 +494,7 @@ def _rows_into(jit: Any, rows: FloatArray, trace: ChainTrace, first: int,
     """The kernel's chain rows of blocks ``first`` .. ``first + len(rows) - 1`` into the
     trace's arrays (the inputs the decisions saw are not the kernel's business: the caller
     fills them); the estimate's details in the reference's words."""
-    from turning_force.core.kernel.components import detail_text, rezeroed_text
+    from turning_force.core.estimation import detail_text, rezeroed_text
 
     r = rows
     sl = slice(first, first + len(rows))

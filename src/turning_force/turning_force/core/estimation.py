@@ -18,11 +18,12 @@ import enum
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core import lti
+from turning_force.core import kernel, lti
 from turning_force.core.drive import (
     CurrentBlock,
     CurrentForceMap,
@@ -39,6 +40,8 @@ __all__ = [
     'ForceEstimator',
     'air_cut_point',
     'calibrate_friction',
+    'detail_text',
+    'rezeroed_text',
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -120,58 +123,6 @@ class ForceEstimate:
     detail: str = ''
 
 
-class _Lowpass:
-    """Butterworth low-pass and filtered derivative, state kept across blocks."""
-
-    def __init__(self, settings: EstimatorSettings, dt_s: float, first_n: float) -> None:
-        from scipy import signal  # 0.7-0.9 s to import: only where the low-pass is chosen
-
-        nyquist = 0.5 / dt_s
-        cutoff = min(settings.lowpass_cutoff_hz, 0.9 * nyquist)
-        self._sos = signal.butter(settings.lowpass_order, cutoff, fs=1.0 / dt_s, output='sos')
-        self._zi = signal.sosfilt_zi(self._sos) * first_n
-        alpha = math.exp(-dt_s / settings.derivative_time_constant_s)
-        # y[k] = alpha y[k-1] + (1 - alpha) (x[k] - x[k-1]) / dt: a first-order-lagged difference.
-        self._db = np.array([1.0, -1.0]) * (1.0 - alpha) / dt_s
-        self._da = np.array([1.0, -alpha])
-        self._dzi = signal.lfiltic(self._db, self._da, [0.0], [first_n])
-
-    def __call__(self, force_n: FloatArray) -> tuple[FloatArray, FloatArray]:
-        from scipy import signal
-
-        smooth, self._zi = signal.sosfilt(self._sos, force_n, zi=self._zi)
-        rate, self._dzi = signal.lfilter(self._db, self._da, smooth, zi=self._dzi)
-        return np.asarray(smooth), np.asarray(rate)
-
-
-class _Kalman:
-    """Steady-state Kalman filter for x = [F, dF/dt] under white force acceleration.
-
-    ``x[k+1] = [[1, dt], [0, 1]] x[k] + w``, ``Q = s_a^2 [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]``,
-    measurement ``F[k] + v``, ``R = s_F^2``. The gain is the solution of the discrete Riccati
-    equation, computed once: the filter is then linear and time-invariant.
-    """
-
-    def __init__(self, settings: EstimatorSettings, dt_s: float, first_n: float) -> None:
-        self.dt_s = dt_s
-        self.gain = lti.kalman_gain(dt_s, settings.kalman_accel_noise_n_s2,
-                                    settings.kalman_force_noise_n)
-        self.x = (first_n, 0.0)
-
-    def __call__(self, force_n: FloatArray) -> tuple[FloatArray, FloatArray]:
-        # Written out (not phi @ x): one order of operations on every machine, the kernel's.
-        dt, (k0, k1) = self.dt_s, self.gain
-        x0, x1 = self.x
-        out = np.empty((force_n.size, 2))
-        for k, z in enumerate(force_n.tolist()):
-            x0 = x0 + dt * x1           # x = phi x
-            innovation = z - x0
-            x0, x1 = x0 + k0 * innovation, x1 + k1 * innovation
-            out[k] = x0, x1
-        self.x = (x0, x1)
-        return out[:, 0], out[:, 1]
-
-
 class ForceEstimator:
     """Force and force rate from blocks of feed-drive currents.
 
@@ -186,144 +137,178 @@ class ForceEstimator:
     Stamps: a DAQ that restarts (or a clock that steps) starts a new time line; after
     ``RESYNC_BLOCKS`` contiguous blocks on it, the estimator follows it. One stray stamp
     (1e9 s) is refused and the blocks after it, on the old time line, are taken as before.
+
+    Friction re-zero: while the tool is out of the material (Park Eq. 25 drifts with the
+    slideway's temperature and lubrication), the q current less Eq. 26's zero-force offset is
+    friction alone, and its ratio to the calibrated curve at this feed scales the curve, within
+    ``rezero_max_change``.
+
+    The arithmetic is written once, as the compiled ``estimator_update`` of
+    :mod:`turning_force.core.kernel.jit` (which the compiled loops run on :meth:`arrays_for`);
+    this class holds its parameters and state and puts its codes into words.
     """
 
     def __init__(self, settings: EstimatorSettings) -> None:
+        jit = kernel.load()
         self.settings = settings
-        self._friction = settings.friction
-        self.friction_scale = 1.0      # re-zeroed friction / calibrated friction
-        self._air_s = 0.0              # how long the force has been below rezero_below_n
-        self._map = settings.current_map
-        self._filter: _Lowpass | _Kalman | None = None
-        self._dt_s = 0.0
-        self._last_t_s = -math.inf
-        self._next_t_s = -math.inf       # where the next block should start
-        self._resync: list[float] = []   # t0 of contiguous refused blocks on another time line
-        self.restarts = 0
+        self._params = _estimator_params(jit, settings)
+        state = np.zeros(jit.ES_SIZE)
+        state[jit.ES_LAST_T] = state[jit.ES_NEXT_T] = -math.inf
+        state[jit.ES_SCALE] = 1.0
+        state[jit.ES_STATUS] = EstimateStatus.STALE
+        self._state = state
+        self._work = np.empty(0)
         self._last = ForceEstimate(0.0, 0.0, 0.0, 0.0, 0.0, EstimateStatus.STALE, 'no data yet')
 
     @property
     def last(self) -> ForceEstimate:
         return self._last
 
+    @property
+    def friction_scale(self) -> float:
+        """Re-zeroed friction / calibrated friction."""
+        return float(self._state[kernel.load().ES_SCALE])
+
+    @property
+    def restarts(self) -> int:
+        """How often the filter restarted after a refused block."""
+        return int(self._state[kernel.load().ES_RESTARTS])
+
+    def arrays_for(self, sample_period_s: float) -> tuple[FloatArray, FloatArray]:
+        """(parameters, state) as ``estimator_update`` reads them (live: a loop that runs
+        them runs this estimator), the filter's coefficients set for blocks sampled at
+        ``sample_period_s`` (where that is one)."""
+        jit = kernel.load()
+        if (self._state[jit.ES_ACTIVE] == 0.0 and math.isfinite(sample_period_s)
+                and sample_period_s > 0):
+            _set_filter(jit, self._params, self.settings, sample_period_s)
+        return self._params, self._state
+
     def update(self, block: CurrentBlock) -> ForceEstimate:
         """Process one block; return the estimate at its last sample."""
-        problem = self._check(block)
-        if problem:
-            return self._invalid(problem)
-        peak = self._peak_a(block)
-        if peak > IMPLAUSIBLE_RANGE_FACTOR * self.settings.current_range_a:
-            # A Hall sensor's output stops at its range; a value far past it is no reading.
-            return self._invalid(f'phase current {peak:.3g} A is beyond '
-                                 f'{IMPLAUSIBLE_RANGE_FACTOR:g} x the sensor range '
-                                 f'({self.settings.current_range_a:g} A): not a reading')
-        with np.errstate(over='ignore', invalid='ignore'):
-            _, current_q = clarke_park(block.phase_u_a, block.phase_v_a, block.rotor_angle_rad)
-            friction = self.friction_scale * self._friction.current_a(block.feed_rate_mm_min)
-            raw_force = self._map.force_n(current_q - friction)
-        if not np.all(np.isfinite(raw_force)):
-            return self._invalid('currents overflow the force computation (|i| up to '
-                                 f'{self._peak_a(block):.3g} A)')
-        if self._filter is None:
-            self._dt_s = block.sample_period_s
-            kind = _Kalman if self.settings.force_filter == 'kalman' else _Lowpass
-            self._filter = kind(self.settings, self._dt_s, float(raw_force[0]))
-        with np.errstate(over='ignore', invalid='ignore'):
-            force, rate = self._filter(raw_force)
-        if not (math.isfinite(force[-1]) and math.isfinite(rate[-1])):
-            return self._invalid(f'force filter overflowed (|i| up to {self._peak_a(block):.3g} '
-                                 'A)')
-        self._last_t_s = block.t0_s
-        self._next_t_s = block.t0_s + len(block) * block.sample_period_s
-        self._resync = []
-        rezeroed = self._rezero(block, float(force[-1]), current_q)
-        status, detail = EstimateStatus.OK, rezeroed
-        if peak > self.settings.current_range_a:
-            status = EstimateStatus.SATURATED
-            detail = f'phase current {peak:.3g} A beyond the sensor range'
-        self._last = ForceEstimate(
-            block.t0_s + (len(block) - 1) * block.sample_period_s,
-            float(force[-1]), float(rate[-1]), float(np.mean(current_q)),
-            float(friction[-1]), status, detail)
-        return self._last
-
-    def _rezero(self, block: CurrentBlock, force_n: float, current_q_a: FloatArray) -> str:
-        """Re-zero the friction while the tool is out of the material (Park Eq. 25 drifts with
-        the slideway's temperature and lubrication): with no cutting force the q current less
-        Eq. 26's zero-force offset is friction alone, and its ratio to the calibrated curve at
-        this feed scales the curve. Bounded by ``rezero_max_change``; returns a line saying
-        what it did, or ''."""
-        c = self.settings
-        in_air = c.rezero_below_n > 0 and abs(force_n) < c.rezero_below_n
-        self._air_s = self._air_s + len(block) * block.sample_period_s if in_air else 0.0
-        if self._air_s < c.rezero_after_s:
-            return ''
-        feed = block.feed_rate_mm_min
-        if float(np.min(np.abs(feed))) < self._friction.min_feed_mm_min:
-            return ''   # standing or creeping: no friction curve to compare with
-        model = float(np.mean(self._friction.current_a(feed)))
-        if abs(model) < 1e-9:
-            return ''
-        measured = float(np.mean(current_q_a)) - self._map.offset_a
-        weight = 1.0 - math.exp(-len(block) * block.sample_period_s / c.rezero_time_constant_s)
-        scale = self.friction_scale + weight * (measured / model - self.friction_scale)
-        self.friction_scale = min(max(scale, 1.0 - c.rezero_max_change),
-                                  1.0 + c.rezero_max_change)
-        return f'friction re-zeroed in air: {self.friction_scale:.3f} x calibrated'
-
-    @staticmethod
-    def _peak_a(block: CurrentBlock) -> float:
-        return float(max(np.max(np.abs(block.phase_u_a)), np.max(np.abs(block.phase_v_a))))
-
-    def _invalid(self, problem: str) -> ForceEstimate:
-        """Refuse a block: the last good force, marked invalid; the filter restarts."""
-        if self._filter is not None:
-            self._filter = None
-            self.restarts += 1
-        last = self._last
-        self._last = ForceEstimate(last.t_s, last.force_n, last.force_rate_n_s, last.current_q_a,
-                                   last.friction_current_a, EstimateStatus.INVALID_INPUT, problem)
-        return self._last
-
-    def _check_stamp(self, block: CurrentBlock) -> str:
-        """'' if the block's stamp follows the time line (or starts a new one), else why not."""
-        t0 = block.t0_s
-        if not math.isfinite(t0):
-            return f'stamp {t0!r} s is not finite'
-        if self._last_t_s == -math.inf:
-            return ''
-        if t0 <= self._last_t_s:
-            problem = f'stamp {t0!r} s is not after the previous {self._last_t_s!r} s'
-        elif t0 - self._next_t_s > self.settings.max_stamp_jump_s:
-            problem = (f'stamp {t0!r} s jumps {t0 - self._next_t_s:.6g} s past the previous '
-                       f'block (max_stamp_jump_s {self.settings.max_stamp_jump_s:g})')
-        else:
-            return ''
-        span = len(block) * block.sample_period_s
-        if not (self._resync and abs(t0 - self._resync[-1] - span) <= 0.5 * block.sample_period_s):
-            self._resync = []
-        self._resync.append(t0)
-        if len(self._resync) >= RESYNC_BLOCKS:   # a new time line: follow it
-            self._resync = []
-            self._last_t_s, self._next_t_s = -math.inf, -math.inf
-            self._filter = None
-            return ''
-        return problem
-
-    def _check(self, block: CurrentBlock) -> str:
+        jit = kernel.load()
+        params, state = self.arrays_for(block.sample_period_s)
         n = len(block)
-        arrays = (block.phase_u_a, block.phase_v_a, block.rotor_angle_rad, block.feed_rate_mm_min)
-        if n == 0 or any(a.size != n for a in arrays):
-            return f'array lengths {[a.size for a in arrays]} differ or are empty'
-        dt = block.sample_period_s
-        if not (math.isfinite(dt) and dt > 0):
-            return f'sample period {dt!r} s is not a positive number'
-        if self._filter is not None and not math.isclose(dt, self._dt_s, rel_tol=1e-6):
-            return f'sample period changed from {self._dt_s!r} s to {dt!r} s'
-        bad = sum(int(np.count_nonzero(~np.isfinite(a))) for a in arrays)
-        if bad:
-            return f'{bad} non-finite samples'
-        return self._check_stamp(block)
+        if self._work.size < 2 * n:
+            self._work = np.empty(2 * n)
+        status = int(jit.estimate_block(
+            params, state, float(block.t0_s), float(block.sample_period_s),
+            _contiguous(block.phase_u_a), _contiguous(block.phase_v_a),
+            _contiguous(block.rotor_angle_rad), _contiguous(block.feed_rate_mm_min),
+            self._work))
+        detail = detail_text(self.settings, block, int(state[jit.ES_DCODE]),
+                             float(state[jit.ES_DVAL]), float(state[jit.ES_DVAL + 1]))
+        if status == EstimateStatus.INVALID_INPUT:
+            last = self._last
+            self._last = ForceEstimate(last.t_s, last.force_n, last.force_rate_n_s,
+                                       last.current_q_a, last.friction_current_a,
+                                       EstimateStatus.INVALID_INPUT, detail)
+        else:
+            self._last = ForceEstimate(
+                float(state[jit.ES_T]), float(state[jit.ES_F]), float(state[jit.ES_R]),
+                float(state[jit.ES_IQ]), float(state[jit.ES_IFR]), EstimateStatus(status),
+                detail)
+        return self._last
+
+
+def _contiguous(values: FloatArray) -> FloatArray:
+    """What the compiled function takes: C-contiguous, writable float64 (a block decoded from
+    a bag is a read-only view of the message's buffer)."""
+    out = np.ascontiguousarray(values, dtype=np.float64)
+    return out if out.flags.writeable else out.copy()
+
+
+def _estimator_params(jit: ModuleType, settings: EstimatorSettings) -> FloatArray:
+    """The estimator's parameters (``E_*``); the filter's coefficients come with
+    :func:`_set_filter` once the sample period is known."""
+    p = np.zeros(jit.E_SIZE)
+    p[jit.E_KIND] = jit.KALMAN if settings.force_filter == 'kalman' else jit.LOWPASS
+    f, m = settings.friction, settings.current_map
+    p[jit.E_FR_A], p[jit.E_FR_B] = f.a_a_per_mm_min2, f.b_a
+    p[jit.E_FR_MIN], p[jit.E_FR_MAX] = f.min_feed_mm_min, f.max_feed_mm_min
+    p[jit.E_MAP_OFF], p[jit.E_MAP_PER] = m.offset_a, m.per_force_a_n
+    p[jit.E_RANGE] = settings.current_range_a
+    p[jit.E_REZ_BELOW], p[jit.E_REZ_AFTER] = settings.rezero_below_n, settings.rezero_after_s
+    p[jit.E_REZ_TAU] = settings.rezero_time_constant_s
+    p[jit.E_REZ_MAX] = settings.rezero_max_change
+    p[jit.E_MAX_JUMP] = settings.max_stamp_jump_s
+    p[jit.E_GAIN_DT] = math.nan
+    return p
+
+
+def _set_filter(jit: ModuleType, params: FloatArray, settings: EstimatorSettings,
+                dt_s: float) -> None:
+    """The filter's coefficients for sample period ``dt_s``.
+
+    - ``kalman``: the steady-state gain of a Kalman filter for x = [F, dF/dt] under white
+      force acceleration (El-Sinawi 2011, Sec. 4, on the force alone; :func:`lti.kalman_gain`):
+      the filter is then linear and time-invariant.
+    - ``lowpass``: Park's Butterworth preprocessor as second-order sections (cut-off at most
+      0.9 x Nyquist), its unit initial state, and the filtered derivative
+      ``y[k] = alpha y[k-1] + (1 - alpha) (x[k] - x[k-1]) / dt``,
+      ``alpha = exp(-dt / derivative_time_constant_s)``.
+    """
+    if params[jit.E_GAIN_DT] == dt_s:
+        return
+    if settings.force_filter == 'kalman':
+        params[jit.E_K0], params[jit.E_K1] = lti.kalman_gain(
+            dt_s, settings.kalman_accel_noise_n_s2, settings.kalman_force_noise_n)
+    else:
+        from scipy import signal  # 0.7-0.9 s to import: only where the low-pass is chosen
+
+        cutoff = min(settings.lowpass_cutoff_hz, 0.9 * 0.5 / dt_s)
+        sos = signal.butter(settings.lowpass_order, cutoff, fs=1.0 / dt_s, output='sos')
+        if sos.shape[0] > 4:
+            raise ValueError(f'lowpass_order {settings.lowpass_order}: more than 4 sections')
+        params[jit.E_NSEC] = sos.shape[0]
+        params[jit.E_SOS:jit.E_SOS + sos.size] = sos.ravel()
+        zi = signal.sosfilt_zi(sos) * 1.0
+        params[jit.E_SOS_ZI:jit.E_SOS_ZI + zi.size] = zi.ravel()
+        alpha = math.exp(-dt_s / settings.derivative_time_constant_s)
+        params[jit.E_DB0], params[jit.E_DB1] = np.array([1.0, -1.0]) * (1.0 - alpha) / dt_s
+        params[jit.E_DA1] = -alpha
+    params[jit.E_GAIN_DT] = dt_s
+
+
+def detail_text(settings: EstimatorSettings, block: CurrentBlock, code: int, a: float,
+                b: float) -> str:
+    """The one line (:attr:`ForceEstimate.detail`) for the estimator's detail code and values
+    on ``block``."""
+    jit = kernel.load()
+    if code == jit.D_NONE:
+        return ''
+    if code == jit.D_LENGTHS:
+        arrays = (block.phase_u_a, block.phase_v_a, block.rotor_angle_rad,
+                  block.feed_rate_mm_min)
+        return f'array lengths {[x.size for x in arrays]} differ or are empty'
+    if code == jit.D_DT_BAD:
+        return f'sample period {block.sample_period_s!r} s is not a positive number'
+    if code == jit.D_DT_CHANGED:
+        return f'sample period changed from {a!r} s to {block.sample_period_s!r} s'
+    if code == jit.D_NONFINITE:
+        return f'{int(a)} non-finite samples'
+    if code == jit.D_STAMP_NONFINITE:
+        return f'stamp {block.t0_s!r} s is not finite'
+    if code == jit.D_STAMP_NOT_AFTER:
+        return f'stamp {block.t0_s!r} s is not after the previous {b!r} s'
+    if code == jit.D_STAMP_JUMP:
+        return (f'stamp {block.t0_s!r} s jumps {b:.6g} s past the previous block '
+                f'(max_stamp_jump_s {settings.max_stamp_jump_s:g})')
+    if code == jit.D_IMPLAUSIBLE:
+        return (f'phase current {a:.3g} A is beyond {IMPLAUSIBLE_RANGE_FACTOR:g} x the '
+                f'sensor range ({settings.current_range_a:g} A): not a reading')
+    if code == jit.D_OVERFLOW:
+        return f'currents overflow the force computation (|i| up to {a:.3g} A)'
+    if code == jit.D_FILTER_OVERFLOW:
+        return f'force filter overflowed (|i| up to {a:.3g} A)'
+    if code == jit.D_SATURATED:
+        return f'phase current {a:.3g} A beyond the sensor range'
+    return rezeroed_text(a)
+
+
+def rezeroed_text(scale: float) -> str:
+    """The line for a friction re-zero to ``scale``."""
+    return f'friction re-zeroed in air: {scale:.3f} x calibrated'
 
 
 def calibrate_friction(

@@ -38,8 +38,7 @@ from turning_force.core.pmc import BridgeSettings, Decision, OverrideGate
 from turning_force.core.shopfloor import CutRecord, InputValues, Learned, taught_reference
 
 __all__ = ['ChainStep', 'ControlChain', 'command_for', 'command_for_would_act',
-           'make_chain_controller', 'make_chain_estimator', 'upgrade_controller',
-           'upgrade_estimator']
+           'make_chain_controller', 'upgrade_controller']
 
 
 def command_for_would_act(estimate: ForceEstimate) -> bool:
@@ -70,26 +69,14 @@ def _kernel_reason(settings: EstimatorSettings | ControllerSettings,
     return kernel.LOADING
 
 
-def make_chain_estimator(settings: EstimatorSettings,
-                         compiled: bool | None = None) -> tuple[ForceEstimator, str]:
-    """The estimator and why it is not on the kernel ('' where it is).
+def make_chain_controller(settings: ControllerSettings,
+                          compiled: bool | None = None) -> tuple[Controller, str]:
+    """The controller and why it is not on the kernel ('' where it is).
 
     ``compiled`` True: on the kernel (a :class:`ConfigError` where it cannot run the
     settings); False: the Python reference; None (the nodes): on the kernel if it is loaded,
     else the reference while it loads in the background (the reason then is
-    ``kernel.LOADING``, and :func:`upgrade_estimator` moves it over, state and all)."""
-    reason = _kernel_reason(settings, compiled)
-    if reason:
-        return ForceEstimator(settings), reason
-    kernel.load()
-    from turning_force.core.kernel.components import CompiledEstimator
-
-    return CompiledEstimator(settings), ''   # type: ignore[return-value]
-
-
-def make_chain_controller(settings: ControllerSettings,
-                          compiled: bool | None = None) -> tuple[Controller, str]:
-    """The controller, as :func:`make_chain_estimator` decides it."""
+    ``kernel.LOADING``, and :func:`upgrade_controller` moves it over, state and all)."""
     reason = _kernel_reason(settings, compiled)
     if reason:
         return make_controller(settings), reason
@@ -99,19 +86,10 @@ def make_chain_controller(settings: ControllerSettings,
     return CompiledController(settings), ''   # type: ignore[return-value]
 
 
-def upgrade_estimator(estimator: ForceEstimator, reason: str) -> tuple[ForceEstimator, str]:
-    """The estimator on the kernel once the kernel has loaded (``reason`` is
-    ``kernel.LOADING``), carrying its state over: the next estimate is the one the reference
-    would give. Else as it was."""
-    if reason != kernel.LOADING or kernel.loaded() is None:
-        return estimator, reason
-    from turning_force.core.kernel.components import CompiledEstimator
-
-    return CompiledEstimator(estimator.settings, estimator), ''   # type: ignore[return-value]
-
-
 def upgrade_controller(controller: Controller, reason: str) -> tuple[Controller, str]:
-    """The controller on the kernel once it has loaded, as :func:`upgrade_estimator`."""
+    """The controller on the kernel once the kernel has loaded (``reason`` is
+    ``kernel.LOADING``), carrying its state over: the next command is the one the reference
+    would give. Else as it was."""
     if reason != kernel.LOADING or kernel.loaded() is None:
         return controller, reason
     from turning_force.core.kernel.components import CompiledController
@@ -165,7 +143,7 @@ class ControlChain:
                                                                               controller)
         if compiled and reason:
             raise ConfigError(f'compiled control chain: {reason}')
-        self.estimator, _ = make_chain_estimator(estimator, not reason)
+        self.estimator = ForceEstimator(estimator)
         self.controller, _ = make_chain_controller(controller, not reason)
         self.gate = OverrideGate(bridge, t_s=t_s)
         self.cuts: list[CutRecord] = []

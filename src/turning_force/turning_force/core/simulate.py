@@ -190,10 +190,7 @@ def _run_compiled(plant: LathePlant, chain: ControlChain, applied: float, out: C
 
     jit = kernel.load()
     pp, ps, times, depths = plant.arrays
-    settings = chain.estimator.settings
-    ep = pack.estimator_params(settings)
-    es = pack.estimator_state(chain.estimator, ep)
-    pack.set_filter(ep, settings, float(pp[jit.P_DT]))
+    ep, es = chain.estimator.arrays_for(float(pp[jit.P_DT]))
     controller = chain.controller
     cp, cs = pack.controller_params(controller), pack.controller_state(controller)
     clevels = pack.levels(controller._table)

@@ -20,7 +20,6 @@ from rclpy.node import Node
 from turning_force_msgs.msg import ForceEstimate, ServoCurrents
 
 from turning_force.core.estimation import EstimateStatus, EstimatorSettings, ForceEstimator
-from turning_force.core.loop import make_chain_estimator, upgrade_estimator
 from turning_force.nodes.convert import (
     estimate_to_msg,
     last_sample_ns,
@@ -53,15 +52,10 @@ class ForceEstimatorNode(Node):
         self.create_timer(STALE_CHECK_S, timer_callback(self._check_stale))
 
     def _make_estimator(self, settings: EstimatorSettings) -> ForceEstimator:
-        """The estimator on the compiled kernel where it covers the settings (in Python
-        while the kernel loads; the same estimates either way)."""
-        estimator, self._why_python = make_chain_estimator(settings)
-        self._show_kernel()
+        """The estimator (compiled: its code is loaded here, before the first block)."""
+        estimator = ForceEstimator(settings)
+        self.diagnostics.set_value('kernel', 'compiled')
         return estimator
-
-    def _show_kernel(self) -> None:
-        self.diagnostics.set_value('kernel', f'python ({self._why_python})' if self._why_python
-                                   else 'compiled')
 
     def _reconfigure(self, settings: EstimatorSettings) -> None:
         self._estimator = self._make_estimator(settings)
@@ -83,11 +77,6 @@ class ForceEstimatorNode(Node):
             self.diagnostics.watch('servo/currents', stale_after_s=5 * period)
             self.diagnostics.received('servo/currents')
             self._watching = True
-        if self._why_python:
-            self._estimator, self._why_python = upgrade_estimator(self._estimator,
-                                                                  self._why_python)
-            if not self._why_python:
-                self._show_kernel()
         estimate = self._estimator.update(servo_currents_to_block(msg))
         if estimate.status == EstimateStatus.INVALID_INPUT:
             self.get_logger().warning(f'servo/currents: {estimate.detail}',

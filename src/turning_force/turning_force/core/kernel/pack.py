@@ -1,5 +1,5 @@
 """The reference objects as the kernel's arrays: parameters and state, read from the live
-Python objects (:class:`ForceEstimator`, the controllers,
+Python objects (the controllers,
 :class:`OverrideGate`), so that a run can start in Python and go on in the kernel at any block
 with the same numbers. Reading their private fields is deliberate: this module is the one
 place that knows both sides, and the kernel-equals-reference tests hold it to them."""
@@ -21,90 +21,18 @@ from turning_force.core.control import (
 )
 from turning_force.core.control.smc import ENGAGED_FRACTION
 from turning_force.core.control.staircase import StaircaseController
-from turning_force.core.estimation import (
-    EstimatorSettings,
-    ForceEstimator,
-    _Kalman,
-    _Lowpass,
-)
 from turning_force.core.kernel import jit as K
 from turning_force.core.loop import ControlChain
 from turning_force.core.overrides import OverrideTable
 from turning_force.core.pmc import OverrideGate
 
-__all__ = ['chain_arrays', 'controller_params', 'controller_state', 'estimator_params',
-           'estimator_state', 'gate_arrays', 'levels', 'set_filter']
+__all__ = ['chain_arrays', 'controller_params', 'controller_state', 'gate_arrays', 'levels']
 
 FloatArray = npt.NDArray[np.float64]
 
 
 def levels(table: OverrideTable) -> FloatArray:
     return np.array(table.levels_pct, dtype=np.float64)
-
-
-# --- estimator ------------------------------------------------------------------------------
-
-def estimator_params(settings: EstimatorSettings) -> FloatArray:
-    """The estimator's parameters; the filter's coefficients come with :func:`set_filter`."""
-    p = np.zeros(K.E_SIZE)
-    p[K.E_KIND] = K.KALMAN if settings.force_filter == 'kalman' else K.LOWPASS
-    f, m = settings.friction, settings.current_map
-    p[K.E_FR_A], p[K.E_FR_B] = f.a_a_per_mm_min2, f.b_a
-    p[K.E_FR_MIN], p[K.E_FR_MAX] = f.min_feed_mm_min, f.max_feed_mm_min
-    p[K.E_MAP_OFF], p[K.E_MAP_PER] = m.offset_a, m.per_force_a_n
-    p[K.E_RANGE] = settings.current_range_a
-    p[K.E_REZ_BELOW], p[K.E_REZ_AFTER] = settings.rezero_below_n, settings.rezero_after_s
-    p[K.E_REZ_TAU], p[K.E_REZ_MAX] = settings.rezero_time_constant_s, settings.rezero_max_change
-    p[K.E_MAX_JUMP] = settings.max_stamp_jump_s
-    p[K.E_GAIN_DT] = math.nan
-    return p
-
-
-def set_filter(params: FloatArray, settings: EstimatorSettings, dt_s: float) -> None:
-    """The filter's coefficients for sample period ``dt_s``, as the reference filter sets
-    them up (its constructor, with a dummy first force: the coefficients do not depend on it)."""
-    if params[K.E_GAIN_DT] == dt_s:
-        return
-    if settings.force_filter == 'kalman':
-        params[K.E_K0], params[K.E_K1] = _Kalman(settings, dt_s, 0.0).gain
-    else:
-        lowpass = _Lowpass(settings, dt_s, 1.0)
-        sos = np.asarray(lowpass._sos)
-        if sos.shape[0] > 4:
-            raise ValueError(f'lowpass_order {settings.lowpass_order}: more than 4 sections')
-        params[K.E_NSEC] = sos.shape[0]
-        params[K.E_SOS:K.E_SOS + sos.size] = sos.ravel()
-        # sosfilt_zi(sos) * 1.0: the unit initial state
-        params[K.E_SOS_ZI:K.E_SOS_ZI + sos.shape[0] * 2] = np.asarray(lowpass._zi).ravel()
-        params[K.E_DB0], params[K.E_DB1] = lowpass._db
-        params[K.E_DA1] = lowpass._da[1]
-    params[K.E_GAIN_DT] = dt_s
-
-
-def estimator_state(estimator: ForceEstimator, params: FloatArray) -> FloatArray:
-    """The estimator's state now (and its filter's coefficients into ``params``)."""
-    s = np.zeros(K.ES_SIZE)
-    s[K.ES_DT] = estimator._dt_s
-    s[K.ES_LAST_T], s[K.ES_NEXT_T] = estimator._last_t_s, estimator._next_t_s
-    s[K.ES_NRESYNC] = len(estimator._resync)
-    s[K.ES_RESYNC:K.ES_RESYNC + len(estimator._resync)] = estimator._resync
-    s[K.ES_SCALE], s[K.ES_AIR] = estimator.friction_scale, estimator._air_s
-    s[K.ES_RESTARTS] = estimator.restarts
-    last = estimator.last
-    s[K.ES_T], s[K.ES_F], s[K.ES_R] = last.t_s, last.force_n, last.force_rate_n_s
-    s[K.ES_IQ], s[K.ES_IFR], s[K.ES_STATUS] = (last.current_q_a, last.friction_current_a,
-                                                int(last.status))
-    f = estimator._filter
-    if f is not None:
-        s[K.ES_ACTIVE] = 1.0
-        set_filter(params, estimator.settings, estimator._dt_s)
-        if isinstance(f, _Kalman):
-            s[K.ES_X], s[K.ES_X + 1] = f.x
-        else:
-            zi = np.asarray(f._zi).ravel()
-            s[K.ES_X:K.ES_X + zi.size] = zi
-            s[K.ES_X + 8] = float(np.asarray(f._dzi).ravel()[0])
-    return s
 
 
 # --- controllers ----------------------------------------------------------------------------
@@ -243,12 +171,9 @@ def gate_arrays(gate: OverrideGate) -> tuple[FloatArray, FloatArray, FloatArray]
 def chain_arrays(chain: ControlChain, dt_s: float) -> tuple[FloatArray, ...]:
     """(estimator params, state, controller params, state, levels, gate params, state, levels)
     of a chain of Python objects now, the estimator's filter set up for blocks sampled at
-    ``dt_s`` (where that is a sample period)."""
-    settings = chain.estimator.settings
-    ep = estimator_params(settings)
-    es = estimator_state(chain.estimator, ep)
-    if es[K.ES_ACTIVE] == 0.0 and math.isfinite(dt_s) and dt_s > 0:
-        set_filter(ep, settings, dt_s)
+    ``dt_s`` (where that is a sample period). The estimator's arrays are its own (live); the
+    rest are copies."""
+    ep, es = chain.estimator.arrays_for(dt_s)
     controller = chain.controller
     gp, gs, glevels = gate_arrays(chain.gate)
     return (ep, es, controller_params(controller), controller_state(controller),
