@@ -292,8 +292,7 @@ def test_every_problem_is_named_and_the_last_good_force_kept():
                                          '(30 A): not a reading'),
         (_uniform(0.05, u=45.0), saturated, 'phase current 45 A beyond the sensor range'),
     ]
-    restarts = 0
-    last_good = None
+    restarts, last_good, previous_ok = 0, None, False
     for block, status, detail in cases:
         estimate = estimator.update(block)
         assert estimate.status == status, detail
