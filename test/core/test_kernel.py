@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -330,8 +332,35 @@ def test_a_node_moves_to_the_kernel_mid_run_with_the_same_numbers():
         applied = 100.0 if command is None else command.override_pct
 
 
-def test_a_loaded_kernel_leaves_the_cache_warm():
+def test_a_loaded_kernel_leaves_the_cache_warm_outside_the_package(monkeypatch, tmp_path):
     # The nodes decide between loading the kernel and staying in Python by this, without
-    # importing numba: numba keys its cache on the source's hash, and so does the stamp.
+    # importing numba: the cache's folder is keyed on the sources' hash, and so is the stamp.
+    # numba's files go to the user's cache, never into the package (a read-only install).
     kernel.load()
     assert kernel.cache_is_warm()
+    package = Path(kernel.__file__).parents[2]
+    assert not [*package.rglob('*.nbi'), *package.rglob('*.nbc')]
+    assert package not in kernel.cache_dir().parents
+    monkeypatch.setenv('NUMBA_CACHE_DIR', str(tmp_path))
+    assert kernel.cache_dir().parent == tmp_path
+    assert not kernel.cache_is_warm()
+
+
+@pytest.mark.slow
+def test_a_first_compilation_says_what_it_does(tmp_path):
+    # A fresh cache: the load compiles, says so on stderr with where and how long, and leaves
+    # the cache warm for the next process, which says nothing.
+    import subprocess
+    import sys
+
+    env = {**os.environ, 'NUMBA_CACHE_DIR': str(tmp_path)}
+    code = 'from turning_force.core import kernel; kernel.load(); print(kernel.cache_is_warm())'
+    first = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True,
+                           text=True, timeout=600, check=True)
+    assert first.stdout.strip() == 'True'
+    assert re.fullmatch(r'turning_force: compiling the kernel into \S+ \(once per install and '
+                        r'version: 15 to 60 s\)\nturning_force: kernel compiled in \d+ s\n',
+                        first.stderr), first.stderr
+    second = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True,
+                            text=True, timeout=600, check=True)
+    assert (second.stdout.strip(), second.stderr) == ('True', '')

@@ -30,7 +30,9 @@ import dataclasses
 import hashlib
 import importlib.util
 import os
+import sys
 import threading
+import time
 from collections.abc import Mapping
 from pathlib import Path
 from types import ModuleType
@@ -38,8 +40,8 @@ from typing import Any
 
 from turning_force.core.settings import Settings
 
-__all__ = ['ENV', 'KNOWN', 'LAWS', 'LOADING', 'NEUTRAL', 'cache_is_warm', 'forced', 'load',
-           'load_in_background', 'loaded', 'why_python']
+__all__ = ['ENV', 'KNOWN', 'LAWS', 'LOADING', 'NEUTRAL', 'SOURCES', 'cache_dir', 'cache_is_warm',
+           'forced', 'load', 'load_in_background', 'loaded', 'why_python']
 
 ENV = 'TURNING_FORCE_KERNEL'
 LOADING = 'the kernel is loading'   # Python until it has: see turning_force.core.loop
@@ -170,56 +172,70 @@ def loaded() -> ModuleType | None:
 
 
 def load() -> ModuleType:
-    """The kernel's module, importing (or with a cold cache compiling) it now if need be."""
+    """The kernel's module, importing (or with a cold cache compiling) it now if need be.
+
+    numba's machine code goes to :func:`cache_dir`, never into the installed package; a
+    compilation (a new install or version) says so on stderr, and how long it took."""
     global _module, _error
     with _lock:
         if _module is None:
+            where = cache_dir()
+            warm = cache_is_warm()
+            start = time.perf_counter()
+            if not warm:
+                print(f'turning_force: compiling the kernel into {where} (once per install and '
+                      'version: 15 to 60 s)', file=sys.stderr, flush=True)
             try:
+                import numba
+
+                numba.config.CACHE_DIR = str(where)   # type: ignore[attr-defined]
                 from turning_force.core.kernel import jit
             except Exception as exc:   # a broken numba install: say so, run Python
                 _error = f'the kernel did not load: {exc!r}'
                 raise
-            _leave_stamp(jit)
+            if not warm:
+                print(f'turning_force: kernel compiled in {time.perf_counter() - start:.0f} s',
+                      file=sys.stderr, flush=True)
+                with contextlib.suppress(OSError):
+                    (where / STAMP).write_text(_source_hash() + '\n')
             _module = jit
     return _module
 
 
 STAMP = 'turning_force_kernel.sha256'
+# Every module that holds compiled code. numba checks only the file that defines a function
+# when it reads its cache, not the files of the functions it calls: the cache's folder is keyed
+# on all of them at once (cache_dir), so that a change to any one never pairs with old code.
+SOURCES = ('jit.py',)
 
 
 def _source_hash() -> str:
-    """What numba keys its cache on: the SHA-256 of the kernel's source."""
-    return hashlib.sha256(Path(__file__).with_name('jit.py').read_bytes()).hexdigest()
+    """The SHA-256 of every source of compiled code (:data:`SOURCES`) and of numba's version."""
+    import importlib.metadata
+
+    digest = hashlib.sha256(importlib.metadata.version('numba').encode())
+    for name in SOURCES:
+        digest.update(Path(__file__).with_name(name).read_bytes())
+    return digest.hexdigest()
 
 
-def _cache_places() -> list[Path]:
-    places = [Path(__file__).with_name('__pycache__')]
-    if os.environ.get('NUMBA_CACHE_DIR'):
-        places.append(Path(os.environ['NUMBA_CACHE_DIR']))
-    places.append(Path.home() / '.cache' / 'numba')
-    return places
+def cache_dir() -> Path:
+    """Where numba keeps the kernel's machine code: ``$NUMBA_CACHE_DIR`` (or the user's cache
+    folder, ``$XDG_CACHE_HOME`` or ``~/.cache``, under ``turning_force/numba``), in a folder
+    named for the sources' hash."""
+    base = os.environ.get('NUMBA_CACHE_DIR', '').strip()
+    if not base:
+        home = os.environ.get('XDG_CACHE_HOME', '').strip() or str(Path.home() / '.cache')
+        base = str(Path(home) / 'turning_force' / 'numba')
+    return Path(base) / _source_hash()[:20]
 
 
 def cache_is_warm() -> bool:
-    """Whether numba's on-disk cache holds the kernel for today's source (a stamp :func:`load`
+    """Whether numba's on-disk cache holds the kernel for today's sources (a stamp :func:`load`
     leaves beside numba's files): then loading it is an import, not a compilation. Costs a
-    hash of one file, no numba."""
-    wanted = _source_hash()
-    for place in _cache_places():
-        stamps = place.glob(f'**/{STAMP}') if place.is_dir() else ()
-        if any(stamp.read_text().strip() == wanted for stamp in stamps):
-            return True
-    return False
-
-
-def _leave_stamp(module: ModuleType) -> None:
-    """After a load: say so beside numba's cache files (where numba could write them)."""
-    try:
-        where = Path(module.run_core._cache._cache_path)
-    except AttributeError:   # numba's internals moved: beside the source, as numba does
-        where = Path(__file__).with_name('__pycache__')
-    with contextlib.suppress(OSError):
-        (where / STAMP).write_text(_source_hash() + '\n')
+    hash of the sources, no numba."""
+    stamp = cache_dir() / STAMP
+    return stamp.is_file() and stamp.read_text().strip() == _source_hash()
 
 
 def load_in_background(wait_at_exit: bool = True) -> None:

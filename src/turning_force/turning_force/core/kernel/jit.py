@@ -11,7 +11,7 @@ them, so that numba's on-disk cache (keyed on this file) can never pair old code
 slots; :mod:`.pack` fills the arrays.
 
 Entry points have explicit signatures: importing this module compiles them, or with a warm
-cache (``cache=True``, ``__pycache__`` beside this file) loads them from disk.
+cache (``cache=True``, in :func:`turning_force.core.kernel.cache_dir`) loads them from disk.
 """
 
 from __future__ import annotations
