@@ -5,16 +5,16 @@ import math
 import numpy as np
 import pytest
 
-from turning_force.core.control import (
-    AdaptiveController,
-    AdaptiveSlidingModeController,
-    ControllerSettings,
-    PIController,
-    PolePlacementAdaptiveController,
-    SlidingModeController,
-    make_controller,
-)
+from turning_force.core import kernel
+from turning_force.core.control import ControllerSettings, make_controller
 from turning_force.core.errors import ConfigError
+
+jit = kernel.load()
+
+
+def theta(controller):
+    """An adaptive law's model estimate (the compiled state's RLS slots)."""
+    return controller.arrays[1][jit.CS_THETA:jit.CS_THETA + 4].copy()
 
 
 def smc_settings(**changes):
@@ -28,7 +28,7 @@ def test_smc_on_the_surface_gives_the_equivalent_control():
     # At F = F_ref, F' = 0 (s = 0) Eq. 20 reduces to v_c = -a1 F / b_hat = F N / (K_s d)_hat:
     # the feed that gives F_ref if K_s d were the geometric mean of its bounds (Eq. 8).
     c = smc_settings()
-    out = SlidingModeController(c).update(500.0, 0.0)
+    out = make_controller(c).update(500.0, 0.0)
     ksd_hat = math.sqrt(2000.0 * 7000.0)
     assert out.override_pct == pytest.approx(100.0 * 500.0 / (ksd_hat * 0.2), rel=1e-12)
     assert out.sliding_variable == 0.0 and out.error_n == 0.0
@@ -39,7 +39,7 @@ def test_smc_satisfies_the_sliding_condition_for_every_b_in_its_bounds(b_fractio
     # Eq. 14: outside the boundary layer s s' <= -eta |s| for any b in [b_min, b_max], where
     # s' = f + b v_c + lambda F' on the Eq. 5 plant. This is what Eqs. 15-16's gain is for.
     c = smc_settings(override_table='fanuc_8bit', smc_eta=5.0)
-    controller = SlidingModeController(c)
+    controller = make_controller(c)
     tau_s, tau_c, n = 0.17, 0.05, 600.0
     a1, a2 = -1 / (tau_s * tau_c), -(tau_s + tau_c) / (tau_s * tau_c)
     b_min, b_max = 2000 / (tau_s * tau_c * n), 7000 / (tau_s * tau_c * n)
@@ -60,14 +60,14 @@ def test_smc_satisfies_the_sliding_condition_for_every_b_in_its_bounds(b_fractio
 
 
 def test_smc_pushes_the_feed_the_right_way():
-    controller = SlidingModeController(smc_settings())
+    controller = make_controller(smc_settings())
     low, high = controller.update(450.0, 0.0), controller.update(550.0, 0.0)
     on = controller.update(500.0, 0.0)
     assert low.override_pct > on.override_pct > high.override_pct
 
 
 def test_smc_output_stays_in_the_table_range():
-    controller = SlidingModeController(smc_settings(override_table='fanuc_0t_4bit'))
+    controller = make_controller(smc_settings(override_table='fanuc_0t_4bit'))
     for force in (0.0, 5000.0, -100.0):
         assert 0.0 <= controller.update(force, 0.0).override_pct <= 150.0
 
@@ -92,7 +92,7 @@ def test_integral_smc_removes_the_steady_error_of_a_wrong_b_hat():
     # epsilon (1 - b_hat / b) / (beta - 1) = 25 * 0.433 / 0.871 = 12.4 N; the integral surface
     # settles on the reference.
     def settle(surface):
-        controller = SlidingModeController(smc_settings(smc_surface=surface))
+        controller = make_controller(smc_settings(smc_surface=surface))
         return eq5_closed_loop(controller, 6600.0) - 500.0
     assert abs(settle('integral')) < 0.01
     assert settle('park1998') == pytest.approx(25 * (1 - math.sqrt(14e6) / 6600)
@@ -105,7 +105,7 @@ def test_adaptive_loop_gain_does_not_depend_on_the_process_gain():
     def response(gain_n_per_pct):
         c = ControllerSettings(controller='adaptive', override_table='ideal',
                                initial_override_pct=400.0 / gain_n_per_pct)
-        controller = AdaptiveController(c)
+        controller = make_controller(c)
         pct, errors = c.initial_override_pct, []
         for _ in range(300):
             force = gain_n_per_pct * pct
@@ -126,7 +126,7 @@ def run_asmc(true_theta, **changes):
     c = ControllerSettings(controller='adaptive_smc', override_table='ideal',
                            spindle_speed_rpm=900.0, programmed_feed_mm_rev=0.5,
                            reference_force_n=1000.0, **changes)
-    controller = AdaptiveSlidingModeController(c)
+    controller = make_controller(c)
     to_u = 0.5 * 900.0 / 60.0 / 100.0
     y, u = [0.0, 0.0], [0.0, 0.0]
     outputs = []
@@ -153,13 +153,13 @@ def test_asmc_learns_the_plant_from_hwang_and_chens_initial_guess():
     outputs, controller = run_asmc(TRUE_THETA)
     assert abs(outputs[-10:] - 1000.0).max() < 1.0
     # DC gain B(1)/A(1) identified (the individual parameters need not be).
-    theta = controller.theta
-    assert (theta[2] + theta[3]) / (1 - theta[0] - theta[1]) == pytest.approx(130.0, rel=0.01)
+    t = theta(controller)
+    assert (t[2] + t[3]) / (1 - t[0] - t[1]) == pytest.approx(130.0, rel=0.01)
 
 
 def test_pi_anti_windup_leaves_saturation_at_once():
     c = ControllerSettings(controller='pi', override_table='fanuc_0t_4bit')
-    controller = PIController(c)
+    controller = make_controller(c)
     for _ in range(1000):  # force far below the reference: the request saturates at 150 %
         out = controller.update(100.0, 0.0)
     assert out.override_pct == 150.0
@@ -175,7 +175,7 @@ def test_controllers_are_chosen_by_name(name):
 
 
 def test_retune_takes_the_new_reference_at_the_next_update():
-    controller = SlidingModeController(smc_settings())
+    controller = make_controller(smc_settings())
     before = controller.update(500.0, 0.0)
     controller.retune(controller.settings.replace(reference_force_n=400.0))
     after = controller.update(500.0, 0.0)
@@ -187,15 +187,20 @@ def test_pole_placement_design_puts_the_poles_where_asked():
     # With the model known, A (1 - q^-1) R + B S must equal A_m: the closed loop's poles are
     # those of a 6 rad/s, 0.9 damping loop sampled at 10 ms (two more at the origin).
     c = ControllerSettings(controller='adaptive_pp', override_table='ideal')
-    controller = PolePlacementAdaptiveController(c)
-    a1, a2, b0, b1 = controller.theta
-    r1, s = controller._design()
+    controller = make_controller(c)
+    a1, a2, b0, b1 = theta(controller)
+    solution = np.empty(4)
+    assert jit.pp_design(controller.arrays[0], a1, a2, b0, b1, solution)
+    r1, *s = solution
     closed = np.polymul(np.polymul([1, a1, a2], [1, -1]), [1, r1])
     closed = np.polyadd(closed, np.polymul([0, b0, b1], s))
     wd = 6.0 * math.sqrt(1 - 0.81)
     m1 = -2 * math.exp(-0.9 * 6.0 * 0.01) * math.cos(wd * 0.01)
     m2 = math.exp(-2 * 0.9 * 6.0 * 0.01)
     np.testing.assert_allclose(closed, [1, m1, m2, 0, 0], atol=1e-12)
+    # A and B with a common root (B = b (1 - 0.5 q^-1), A = (1 - 0.5 q^-1)(1 - 0.2 q^-1)):
+    # the system is singular, and the law holds its feed rather than divide by it.
+    assert not jit.pp_design(controller.arrays[0], -0.7, 0.1, 1.0, -0.5, solution)
 
 
 def test_pole_placement_adaptive_settles_on_the_reference():
@@ -204,14 +209,14 @@ def test_pole_placement_adaptive_settles_on_the_reference():
     true = np.array([-1.7, 0.75, 0.4, 0.25])   # a1, a2, b0, b1: gain 0.65 / 0.05 = 13 N/%
     c = ControllerSettings(controller='adaptive_pp', override_table='ideal',
                            reference_force_n=500.0)
-    controller = PolePlacementAdaptiveController(c)
+    controller = make_controller(c)
     y, u = [0.0, 0.0], [100.0, 100.0]
     for _ in range(1500):
         force = -true[0] * y[0] - true[1] * y[1] + true[2] * u[0] + true[3] * u[1]
         pct = controller.update(force, 0.0).override_pct
         y, u = [force, y[0]], [pct, u[0]]
     assert y[0] == pytest.approx(500.0, abs=0.5)
-    a1, a2, b0, b1 = controller.theta
+    a1, a2, b0, b1 = theta(controller)
     assert (b0 + b1) / (1 + a1 + a2) == pytest.approx(13.0, rel=0.05)
 
 
@@ -232,46 +237,59 @@ def test_a_law_recovers_from_an_absurd_force(name, absurd_n):
     requests = [controller.update(450.0 + k, 0.0).override_pct for k in range(40)]
     assert all(math.isfinite(r) and 0.0 <= r <= 150.0 for r in requests)
     if name in ('adaptive_smc', 'adaptive_pp'):
-        assert np.all(np.isfinite(controller.theta))
+        assert np.all(np.isfinite(theta(controller)))
     if not math.isfinite(absurd_n):
         assert controller.resets == 1
 
 
-def test_rls_restarts_on_non_finite_data_and_fits_again():
-    from turning_force.core.control import RecursiveLeastSquares
+def rls_arrays(theta0, p0, **options):
+    """The compiled estimator's parameters (from the adaptive laws' own fill) and state."""
+    from turning_force.core.control import rls
 
-    # y = 2 x1 - 3 x2, noise-free: RLS with a large P0 fits it in a few samples.
-    rls = RecursiveLeastSquares([0.0, 0.0], 1e6)
+    p = np.zeros(jit.C_SIZE)
+    rls.fill(jit, p, theta0, p0, **options)
+    s = np.zeros(jit.CS_QUEUE)
+    jit._rls_restart(p, s)
+    return p, s
+
+
+def test_rls_restarts_on_non_finite_data_and_fits_again():
+    # y = 2 x1 - 3 x2 + 0.5 x3 + x4, noise-free: RLS with a large P0 fits it in a few samples.
+    p, s = rls_arrays([0.0] * 4, 1e6)
+    true = np.array([2.0, -3.0, 0.5, 1.0])
     rng = np.random.default_rng(3)
-    for _ in range(10):
-        phi = rng.normal(size=2)
-        rls.update(phi, float(phi @ [2.0, -3.0]))
-    np.testing.assert_allclose(rls.theta, [2.0, -3.0], rtol=1e-6)
-    assert not rls.update(np.array([1.0, math.nan]), 1.0)
-    assert rls.restarts == 1 and np.all(rls.theta == 0.0)
-    for _ in range(10):
-        phi = rng.normal(size=2)
-        rls.update(phi, float(phi @ [2.0, -3.0]))
-    np.testing.assert_allclose(rls.theta, [2.0, -3.0], rtol=1e-6)
+    for _ in range(12):
+        phi = rng.normal(size=4)
+        jit._rls_update(p, s, *phi, float(phi @ true))
+    np.testing.assert_allclose(s[jit.CS_THETA:jit.CS_THETA + 4], true, rtol=1e-6)
+    jit._rls_update(p, s, 1.0, math.nan, 0.0, 0.0, 1.0)
+    assert s[jit.CS_RLS_RESTARTS] == 1 and np.all(s[jit.CS_THETA:jit.CS_THETA + 4] == 0.0)
+    for _ in range(12):
+        phi = rng.normal(size=4)
+        jit._rls_update(p, s, *phi, float(phi @ true))
+    np.testing.assert_allclose(s[jit.CS_THETA:jit.CS_THETA + 4], true, rtol=1e-6)
 
 
 def test_rls_dead_zone_and_projection_leave_the_model_alone():
-    from turning_force.core.control import RecursiveLeastSquares
-
-    rls = RecursiveLeastSquares([1.0], 100.0, dead_zone=0.5)
-    assert not rls.update(np.array([1.0]), 1.4)     # error 0.4: inside the dead zone
-    assert rls.update(np.array([1.0]), 2.0)
-    positive = RecursiveLeastSquares([1.0], 100.0, accept=lambda theta: bool(theta[0] > 0))
-    assert not positive.update(np.array([1.0]), -5.0)   # would make theta negative
-    assert positive.theta[0] == 1.0
+    p, s = rls_arrays([1.0, 0.0, 0.0, 0.0], 100.0, dead_zone=0.5)
+    jit._rls_update(p, s, 1.0, 0.0, 0.0, 0.0, 1.4)     # error 0.4: inside the dead zone
+    assert s[jit.CS_THETA] == 1.0
+    jit._rls_update(p, s, 1.0, 0.0, 0.0, 0.0, 2.0)
+    assert s[jit.CS_THETA] > 1.0
+    # The projection: theta = [a1, a2, b0, b1] must keep B(1) > 0 and A(1) > 0.
+    p, s = rls_arrays([-0.5, 0.0, 1.0, 1.0], 100.0, positive_static_gain=True)
+    jit._rls_update(p, s, 0.0, 0.0, 1.0, 1.0, -50.0)   # would turn B(1) negative
+    np.testing.assert_array_equal(s[jit.CS_THETA:jit.CS_THETA + 4], [-0.5, 0.0, 1.0, 1.0])
+    jit._rls_update(p, s, 0.0, 0.0, 1.0, 1.0, 3.0)     # B(1) stays positive: taken
+    assert s[jit.CS_THETA + 2] + s[jit.CS_THETA + 3] > 2.0
 
 
 def test_the_settings_choices_are_the_registry():
     from turning_force.core.control import CONTROLLERS
 
     assert ControllerSettings.fields()['controller'][1].choices == tuple(CONTROLLERS)
-    for name, cls in CONTROLLERS.items():
-        assert cls.name == name
+    for name, law in CONTROLLERS.items():
+        assert law.name == name
 
 
 @pytest.mark.parametrize(('changes', 'message'), [

@@ -20,14 +20,11 @@ import pytest
 
 from turning_force import robustness
 from turning_force.core import kernel
-from turning_force.core.control import ControllerSettings, make_controller
+from turning_force.core.control import ControllerSettings
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import ConfigError
-from turning_force.core.estimation import EstimatorSettings, ForceEstimator
+from turning_force.core.estimation import EstimatorSettings
 from turning_force.core.experiment import Experiment, load_experiment
-from turning_force.core.loop import ControlChain
-from turning_force.core.overrides import get_table
-from turning_force.core.plant import LathePlant
 from turning_force.core.pmc import BridgeSettings
 from turning_force.core.settings import setting
 from turning_force.core.simulate import simulate
@@ -55,33 +52,14 @@ IN_PYTHON = {'shopfloor': 'pmc_bridge.program_enable_required = True is not in t
                           'kernel (only False)'}
 
 
-def assert_same_chain(experiment: Experiment) -> None:
-    """The chain (estimator and controller compiled, the gate the bridge's) against the
-    reference, block by block on the plant, with the machine's inputs."""
-    compiled = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
-                            compiled=True)
-    reference = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
-                             compiled=False)
-    plant = LathePlant(experiment.plant)
-    applied = get_table(experiment.bridge.override_table).quantise(
-        experiment.controller.initial_override_pct)
-    for _ in range(round(experiment.run.duration_s / experiment.run.control_period_s)):
-        block = plant.step(applied)
-        step = compiled.step(block.currents, inputs=block.inputs)
-        assert step == reference.step(block.currents, inputs=block.inputs)
-        applied = step.decision.applied_pct
-    assert compiled.close() == reference.close()
-
-
 @pytest.mark.parametrize('path', FILES, ids=[p.stem for p in FILES])
 def test_every_experiment_file(path):
     e = load_experiment(path)
     reason = kernel.why_python(e.estimator, e.controller, e.bridge, e.plant)
     assert reason == IN_PYTHON.get(path.stem, '')
-    if reason:   # the core loop runs it in Python, and says why; the chain's pieces compiled
+    if reason:   # the core loop runs it in Python (the gate's), and says why
         result = simulate(e.with_sets(['experiment.duration_s=0.5']))
         assert result.compiled_from is None and result.python_reason == reason
-        assert_same_chain(e)
     else:
         assert_same_run(e)
 
@@ -174,25 +152,6 @@ def test_compiled_runs_are_deterministic():
         np.testing.assert_array_equal(values, second.trace[name], err_msg=name)
 
 
-def test_the_chain_steps_alike_on_either_path():
-    # ControlChain is what replay runs: estimate, command and decision, details included.
-    e = load_experiment(FIG8).with_sets(['lathe_sim.sensor_fault_start_s=1.0',
-                                         'lathe_sim.sensor_fault_duration_s=0.05',
-                                         'force_estimator.current_range_a=4.0'])
-    compiled = ControlChain(e.estimator, e.controller, e.bridge, compiled=True)
-    reference = ControlChain(e.estimator, e.controller, e.bridge, compiled=False)
-    assert compiled.compiled and not reference.compiled
-    plant = LathePlant(e.plant)
-    applied = 100.0
-    for _ in range(600):
-        block = plant.step(applied).currents
-        step, expected = compiled.step(block), reference.step(block)
-        assert step == expected
-        applied = step.decision.applied_pct
-    assert compiled.estimator.restarts == reference.estimator.restarts == 1
-    assert compiled.controller.resets == reference.controller.resets
-
-
 @pytest.mark.parametrize('table', ['fanuc_0t_4bit', 'fanuc_8bit', 'ideal'])
 def test_the_gates_decide_alike(table):
     # Commands in and out of range, non-finite ones, late ones (watchdog), forces over the
@@ -229,30 +188,6 @@ def test_the_gates_decide_alike(table):
 def _block(t0=0.0, n=10, dt=1e-3, u=1.0, v=-0.5, feed=60.0):
     return CurrentBlock(t0, dt, np.full(n, u), np.full(n, v), np.linspace(0.0, 1.0, n),
                         np.full(n, feed))
-
-
-@pytest.mark.parametrize('law', ['smc', 'adaptive', 'adaptive_smc', 'adaptive_pp', 'pi',
-                                 'staircase'])
-def test_the_controllers_answer_alike(law):
-    # Forces that cut, jump, overflow and go missing: requests, errors, sliding variables,
-    # reachability and resets equal; a retune (new reference) taken alike.
-    from turning_force.core.kernel.components import CompiledController
-
-    settings = ControllerSettings(controller=law, quantiser='error_feedback',
-                                  model_dead_time_s=0.03)
-    compiled, reference = CompiledController(settings), make_controller(settings)
-    rng = np.random.default_rng(7)
-    forces = np.concatenate([np.linspace(0.0, 800.0, 60), 500 + 30 * rng.standard_normal(200),
-                             [1e300, -1e300, math.nan, math.inf, 400.0, 600.0],
-                             300 + 200 * rng.random(100)])
-    for k, force in enumerate(forces):
-        if k == 150:
-            new = settings.replace(reference_force_n=420.0)
-            compiled.retune(new)
-            reference.retune(new)
-        rate = float(rng.normal(0.0, 500.0))
-        assert compiled.update(float(force), rate) == reference.update(float(force), rate), k
-    assert compiled.resets == reference.resets > 0
 
 
 def test_the_core_loop_with_shop_floor_behaviours_runs_in_python():
@@ -298,38 +233,6 @@ def test_a_setting_the_kernel_does_not_know_runs_in_python():
                                   simulate(e, compiled=True).trace['applied_override_pct'])
     with pytest.raises(ConfigError, match=r'compiled core loop: pmc_bridge\.dwell_hold_s'):
         simulate(unknown, compiled=True)
-
-
-def test_the_environment_switches_the_kernel_off(monkeypatch):
-    e = load_experiment(FIG8)
-    monkeypatch.setenv(kernel.ENV, 'off')
-    chain = ControlChain(e.estimator, e.controller, e.bridge)
-    assert not chain.compiled and chain.python_reason == f'{kernel.ENV}=off'
-    monkeypatch.delenv(kernel.ENV)
-    chain = ControlChain(e.estimator, e.controller, e.bridge)
-    assert chain.compiled and chain.python_reason == ''
-
-
-def test_a_node_moves_to_the_kernel_mid_run_with_the_same_numbers():
-    # The controller node starts in Python while the kernel loads (kernel.LOADING) and moves
-    # over at a block, carrying its state: the commands go on as the reference's would.
-    from turning_force.core.loop import command_for, upgrade_controller
-
-    e = load_experiment(FIG8).with_sets(['lathe_sim.pmc_dead_time_s=0.04',
-                                         'force_controller.model_dead_time_s=0.04'])
-    kernel.load()
-    plant = LathePlant(e.plant)
-    estimator = ForceEstimator(e.estimator)
-    law, reference_law = make_controller(e.controller), make_controller(e.controller)
-    applied = 100.0
-    for k in range(500):
-        if k == 123:
-            law, reason = upgrade_controller(law, kernel.LOADING)
-            assert reason == '' and getattr(law, 'compiled', False)
-        estimate = estimator.update(plant.step(applied).currents)
-        command = command_for(law, estimate)
-        assert command == command_for(reference_law, estimate), k
-        applied = 100.0 if command is None else command.override_pct
 
 
 def test_a_loaded_kernel_leaves_the_cache_warm_outside_the_package(monkeypatch, tmp_path):

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from turning_force.core.control import CONTROLLERS, ControllerSettings, make_controller
-from turning_force.core.control.staircase import StaircaseController
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import load_experiment
 from turning_force.core.simulate import simulate
@@ -19,8 +18,10 @@ def staircase(**changes):
 
 
 def test_registered_as_a_law():
-    assert CONTROLLERS['staircase'] is StaircaseController
-    assert isinstance(staircase(), StaircaseController)
+    from turning_force.core.control import staircase as module
+
+    assert CONTROLLERS['staircase'] is module.LAW
+    assert staircase().name == 'staircase'
 
 
 def test_plays_each_level_for_its_step_and_repeats():

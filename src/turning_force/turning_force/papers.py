@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from turning_force.core import kernel
 from turning_force.core.experiment import load_experiment
 from turning_force.core.simulate import SimulationResult, simulate
 
@@ -70,7 +69,6 @@ def settled_forces(result: SimulationResult, change_times_s: Sequence[float],
 
 
 def reproduce(directory: Path, rows: Sequence[Row] = ROWS) -> list[RowResult]:
-    kernel.load_in_background()   # many short runs: the first in Python, the rest compiled
     out = []
     for row in rows:
         experiment = load_experiment(directory / f'{row.experiment}.yaml').with_sets(row.sets)

@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from turning_force.core import kernel
 from turning_force.core.experiment import Experiment, load_experiment
 from turning_force.core.identify import identify
 from turning_force.core.plant import LathePlant, PlantSettings
@@ -143,9 +142,7 @@ def scenario_experiment(directory: Path, scenario: Scenario, controller: str,
 
 
 def run_scenario(experiment: Experiment) -> dict[str, float]:
-    """One row's metrics; a matrix is many short runs: the kernel loads on a thread while the
-    first run in Python, the others run compiled (the same numbers)."""
-    kernel.load_in_background()
+    """One row's metrics."""
     return simulate(experiment).metrics
 
 

@@ -397,10 +397,10 @@ def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[Curr
         raise ConfigError(f'{experiment.run.name}: compiled replay: {reason}')
     if reason or arrays is None:
         trace = _replay_python(experiment, blocks, n, arm_changes, inputs, reference_force_n,
-                               False if compiled is False else None, progress)
+                               progress)
         return trace._with_path(None, reason)
     chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
-                         reference_force_n=reference_force_n, compiled=False)
+                         reference_force_n=reference_force_n)
     trace = _replay_compiled(chain, arrays, arm_changes, progress)
     if seen is not None:
         trace.program_enable[:], trace.threading[:], trace.operator_dial_pct[:] = seen.seen()
@@ -422,12 +422,12 @@ def _inputs_reason(experiment: Experiment, inputs: InputArrays) -> str:
 def _replay_python(experiment: Experiment, blocks: Callable[[int], CurrentBlock], n: int,
                    arm_changes: Sequence[tuple[float, bool]],
                    inputs: Callable[[int], InputValues | None] | None,
-                   reference_force_n: float | None, compiled: bool | None,
+                   reference_force_n: float | None,
                    progress: Callable[[int, int], None] | None = None) -> ChainTrace:
-    """The reference: :class:`ControlChain` block by block (its estimator and controller on
-    the kernel where ``compiled`` is None and it covers them, as replay has them)."""
+    """:class:`ControlChain` block by block (the gate the bridge's, with the shop-floor
+    behaviours)."""
     chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
-                         reference_force_n=reference_force_n, compiled=compiled)
+                         reference_force_n=reference_force_n)
     trace = ChainTrace._empty(n)
     changes = list(arm_changes)
     next_change = 0

@@ -14,9 +14,9 @@ The nodes run the same pieces (``force_estimator`` the estimator, ``force_contro
 :func:`command_for`, ``pmc_bridge`` the gate); the core loop (:mod:`.simulate`), replay and any
 offline study run this class, so all of them make the same decisions from the same blocks.
 
-The estimator and the controller run on the compiled kernel (:mod:`turning_force.core.kernel`)
-where it covers their settings, the plain Python reference elsewhere: the same numbers either
-way. :attr:`ControlChain.compiled` says which, :attr:`ControlChain.python_reason` why not.
+The estimator and the controller run compiled (the one source of each: the core loop, replay
+and the nodes all run the same functions); the gate is the bridge's (with the shop-floor
+behaviours), a few comparisons per block.
 """
 
 from __future__ import annotations
@@ -24,7 +24,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from turning_force.core import kernel
 from turning_force.core.control import (
     Controller,
     ControllerSettings,
@@ -37,8 +36,7 @@ from turning_force.core.estimation import EstimatorSettings, ForceEstimate, Forc
 from turning_force.core.pmc import BridgeSettings, Decision, OverrideGate
 from turning_force.core.shopfloor import CutRecord, InputValues, Learned, taught_reference
 
-__all__ = ['ChainStep', 'ControlChain', 'command_for', 'command_for_would_act',
-           'make_chain_controller', 'upgrade_controller']
+__all__ = ['ChainStep', 'ControlChain', 'command_for', 'command_for_would_act']
 
 
 def command_for_would_act(estimate: ForceEstimate) -> bool:
@@ -49,52 +47,6 @@ def command_for_would_act(estimate: ForceEstimate) -> bool:
     controller sends nothing, and the PMC bridge's watchdog takes over if that goes on.
     """
     return estimate.status.actionable and math.isfinite(estimate.force_n)
-
-
-def _kernel_reason(settings: EstimatorSettings | ControllerSettings,
-                   compiled: bool | None) -> str:
-    """'' where the component goes on the kernel now, else why not (kernel.LOADING: later)."""
-    if compiled is False:
-        return 'compiled=False'
-    reason = kernel.why_python(settings)
-    if compiled and reason:
-        raise ConfigError(f'compiled {settings.SECTION}: {reason}')
-    if reason or compiled or kernel.loaded() is not None:
-        return reason
-    # A node: start in Python at once, on the kernel once it has loaded (upgrade_*); with a
-    # cold cache (a fresh install) no compilation lands on the machine's control path.
-    if not kernel.cache_is_warm():
-        return "numba's cache holds no kernel for this install (make setup compiles it)"
-    kernel.load_in_background(wait_at_exit=False)
-    return kernel.LOADING
-
-
-def make_chain_controller(settings: ControllerSettings,
-                          compiled: bool | None = None) -> tuple[Controller, str]:
-    """The controller and why it is not on the kernel ('' where it is).
-
-    ``compiled`` True: on the kernel (a :class:`ConfigError` where it cannot run the
-    settings); False: the Python reference; None (the nodes): on the kernel if it is loaded,
-    else the reference while it loads in the background (the reason then is
-    ``kernel.LOADING``, and :func:`upgrade_controller` moves it over, state and all)."""
-    reason = _kernel_reason(settings, compiled)
-    if reason:
-        return make_controller(settings), reason
-    kernel.load()
-    from turning_force.core.kernel.components import CompiledController
-
-    return CompiledController(settings), ''   # type: ignore[return-value]
-
-
-def upgrade_controller(controller: Controller, reason: str) -> tuple[Controller, str]:
-    """The controller on the kernel once the kernel has loaded (``reason`` is
-    ``kernel.LOADING``), carrying its state over: the next command is the one the reference
-    would give. Else as it was."""
-    if reason != kernel.LOADING or kernel.loaded() is None:
-        return controller, reason
-    from turning_force.core.kernel.components import CompiledController
-
-    return CompiledController(controller.settings, controller), ''   # type: ignore[return-value]
 
 
 def command_for(controller: Controller, estimate: ForceEstimate) -> ControlOutput | None:
@@ -126,29 +78,21 @@ class ControlChain:
     the bridge names a teach-in file that has it (as the bridge publishes it when configured),
     else the controller settings'. Replay passes the one the session ran with.
 
-    ``compiled``: estimator and controller on the kernel where it covers their settings
-    (None), always (True), or never (False). The gate is the Python one (the bridge's, with
-    the shop-floor behaviours): a few comparisons per block.
+    The gate is the Python one (the bridge's, with the shop-floor behaviours): a few
+    comparisons per block.
     """
 
     def __init__(self, estimator: EstimatorSettings, controller: ControllerSettings,
                  bridge: BridgeSettings, t_s: float = 0.0,
-                 reference_force_n: float | None = None,
-                 compiled: bool | None = None) -> None:
+                 reference_force_n: float | None = None) -> None:
         if reference_force_n is None:
             reference_force_n = taught_reference(bridge)
         if reference_force_n is not None:
             controller = _with_reference(controller, reference_force_n, bridge)
-        reason = 'compiled=False' if compiled is False else kernel.why_python(estimator,
-                                                                              controller)
-        if compiled and reason:
-            raise ConfigError(f'compiled control chain: {reason}')
         self.estimator = ForceEstimator(estimator)
-        self.controller, _ = make_chain_controller(controller, not reason)
+        self.controller = make_controller(controller)
         self.gate = OverrideGate(bridge, t_s=t_s)
         self.cuts: list[CutRecord] = []
-        self.compiled = not reason
-        self.python_reason = reason
 
     def step(self, block: CurrentBlock, t_s: float | None = None,
              inputs: InputValues | None = None) -> ChainStep:

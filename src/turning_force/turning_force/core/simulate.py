@@ -95,24 +95,20 @@ class Keeper(Protocol):
 
 # Blocks per call of the kernel: the plant's noise for them is drawn in advance.
 CHUNK_BLOCKS = 4096
-# A run this long (or longer) loads the kernel (numba's import and the cached machine code:
-# about a second) on a thread while its first blocks run in Python; a shorter one is done in
-# Python first (about 250 us a block: 3000 blocks take about as long as the load).
-BACKGROUND_BLOCKS = 3000
 
 
 def simulate(experiment: Experiment, compiled: bool | None = None,
              python_blocks: int = 0) -> SimulationResult:
     """Run an experiment through the core loop; deterministic for a given file and seed.
 
-    ``compiled``: None, the kernel where it covers the settings and pays: at once if it is
-    loaded; for a run of ``BACKGROUND_BLOCKS`` or more, from the block at which it has loaded
-    on a thread (the first ones run in Python); a shorter run in Python, which is done first.
-    True: the kernel from the first block (a :class:`ConfigError` naming the setting where it
-    cannot); False: the Python reference throughout. ``TURNING_FORCE_KERNEL=on`` in the
-    environment makes None True, ``off`` False. ``python_blocks``: at least this many blocks
-    in Python before the kernel takes over (the hand-over, which the tests hold to the
-    reference).
+    The plant, the estimator and the controller are compiled on every path (their code is
+    loaded before the first block). What ``compiled`` chooses is the loop and its gate:
+    None, the kernel's loop where its gate covers the settings, else the bridge's gate block by
+    block (:func:`turning_force.core.kernel.why_python` says why); True: the kernel's loop (a
+    :class:`ConfigError` naming the setting where it cannot); False: block by block.
+    ``TURNING_FORCE_KERNEL=on`` in the environment makes None True, ``off`` False.
+    ``python_blocks``: at least this many blocks block by block before the kernel's loop takes
+    over (the hand-over, which the tests hold to the other gate).
     """
     return run_loop(experiment, compiled, python_blocks)
 
@@ -122,8 +118,7 @@ def run_loop(experiment: Experiment, compiled: bool | None = None, python_blocks
     """:func:`simulate`, handing every block to ``keeper`` as well where one is given."""
     wall_start = time.perf_counter()
     table = get_table(experiment.bridge.override_table)
-    chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
-                         compiled=False)
+    chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge)
     applied = table.quantise(experiment.controller.initial_override_pct)
     plant = LathePlant(experiment.plant, initial_override_pct=applied)
     steps = round(experiment.run.duration_s / experiment.run.control_period_s)
@@ -137,16 +132,8 @@ def run_loop(experiment: Experiment, compiled: bool | None = None, python_blocks
         sections=('lathe_sim',))
     if compiled and reason:
         raise ConfigError(f'{experiment.run.name}: compiled core loop: {reason}')
-    if compiled:
-        kernel.load()
-    elif not reason and kernel.loaded() is None:
-        if steps >= BACKGROUND_BLOCKS:
-            kernel.load_in_background()
-        else:
-            reason = (f'a short run ({steps} blocks) is done in Python before numba would '
-                      'load')
     k = 0
-    while k < steps and (reason or k < python_blocks or kernel.loaded() is None):
+    while k < steps and (reason or k < python_blocks):
         reference_now = chain.controller.settings.reference_force_n   # before a teach-in
         block = plant.step(applied)
         step = chain.step(block.currents, inputs=block.inputs)
@@ -167,8 +154,6 @@ def run_loop(experiment: Experiment, compiled: bool | None = None, python_blocks
     if k < steps:
         compiled_from = k
         _run_compiled(plant, chain, applied, out, rows, k, steps, keeper)
-    elif not reason and steps:
-        reason = 'the run ended before the kernel had loaded'
     trace = {name: rows[:, i].copy() for i, name in enumerate(TRACE_NAMES)}
     try:
         metrics = compute_metrics(
@@ -191,9 +176,7 @@ def _run_compiled(plant: LathePlant, chain: ControlChain, applied: float, out: C
     jit = kernel.load()
     pp, ps, times, depths = plant.arrays
     ep, es = chain.estimator.arrays_for(float(pp[jit.P_DT]))
-    controller = chain.controller
-    cp, cs = pack.controller_params(controller), pack.controller_state(controller)
-    clevels = pack.levels(controller._table)
+    cp, cs, clevels = chain.controller.arrays
     gp, gs, glevels = pack.gate_arrays(chain.gate)
     last = np.array([out.override_pct, out.sliding_variable, float(out.reachable)])
     for start in range(first, steps, CHUNK_BLOCKS):

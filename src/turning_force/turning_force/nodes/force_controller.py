@@ -21,8 +21,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64
 from turning_force_msgs.msg import FeedCommand, ForceEstimate
 
-from turning_force.core.control import ControllerSettings
-from turning_force.core.loop import command_for, make_chain_controller, upgrade_controller
+from turning_force.core.control import ControllerSettings, make_controller
+from turning_force.core.loop import command_for
 from turning_force.nodes.convert import estimate_from_msg
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
@@ -41,10 +41,10 @@ class ForceControllerNode(Node):
         super().__init__('force_controller', **kwargs)
         self.parameters = SettingsParameters(self, ControllerSettings, self._retune)
         settings = self.parameters.current
-        # On the compiled kernel where it covers the settings (in Python while it loads).
-        self._controller, self._why_python = make_chain_controller(settings)
+        # Compiled: its code is loaded here, before the first estimate.
+        self._controller = make_controller(settings)
         self.diagnostics = Diagnostics(self)
-        self._show_kernel()
+        self.diagnostics.set_value('kernel', 'compiled')
         self.diagnostics.watch('force/estimate', stale_after_s=5 * settings.control_period_s)
         self.diagnostics.set_value('controller', settings.controller)
         self._reachable = True
@@ -52,10 +52,6 @@ class ForceControllerNode(Node):
         self._command = FeedCommand()   # refilled per estimate (rclpy serialises on publish)
         self.create_subscription(ForceEstimate, 'force/estimate', self._on_estimate, 10)
         self.create_subscription(Float64, 'force/reference', self._on_reference, REFERENCE_QOS)
-
-    def _show_kernel(self) -> None:
-        self.diagnostics.set_value('kernel', f'python ({self._why_python})' if self._why_python
-                                   else 'compiled')
 
     def _retune(self, settings: ControllerSettings) -> None:
         self._controller.retune(settings)
@@ -71,11 +67,6 @@ class ForceControllerNode(Node):
 
     def _on_estimate(self, msg: ForceEstimate) -> None:
         self.diagnostics.received('force/estimate')
-        if self._why_python:
-            self._controller, self._why_python = upgrade_controller(self._controller,
-                                                                    self._why_python)
-            if not self._why_python:
-                self._show_kernel()
         out = command_for(self._controller, estimate_from_msg(msg))
         if out is None:
             self.diagnostics.warn(f'force/estimate status {msg.status}: {msg.detail}')

@@ -26,7 +26,6 @@ the reason is there). The signals the reader and replay take are equal.
 
 from __future__ import annotations
 
-import contextlib
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -35,11 +34,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core import kernel
 from turning_force.core.batch import CoreRun, run_core
 from turning_force.core.experiment import Experiment
 from turning_force.core.overrides import get_table
-from turning_force.core.simulate import BACKGROUND_BLOCKS
 from turning_force.session import codec
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
@@ -94,16 +91,7 @@ class CoreSession:
 
 def record_core(experiment: Experiment, out: Path,
                 progress: Callable[[int, int], None] | None = None) -> CoreSession:
-    """Run ``experiment`` on the core loop and record it to ``out`` (see the module's text).
-
-    A run long enough for the kernel to pay loads it first (a second, warm), rather than on a
-    thread beside the Python blocks: the writing takes longer than that load anyway."""
-    steps = round(experiment.run.duration_s / experiment.run.control_period_s)
-    if steps >= BACKGROUND_BLOCKS and not kernel.why_python(
-            experiment.estimator, experiment.controller, experiment.bridge, experiment.plant,
-            sections=('lathe_sim',)):
-        with contextlib.suppress(Exception):   # a broken numba: the run says so, in Python
-            kernel.load()
+    """Run ``experiment`` on the core loop and record it to ``out`` (see the module's text)."""
     run = run_core(experiment)
     write_core_session(experiment, run, out, progress)
     return CoreSession(out, run, len(run.currents))

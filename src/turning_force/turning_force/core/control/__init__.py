@@ -20,39 +20,22 @@ One module per law:
   excitation for ``turning-force identify``.
 
 The two adaptive laws share one recursive least-squares estimator (:mod:`.rls`); the names come
-from one registry (:mod:`.registry`), which the settings' choices are built from.
+from one registry (:mod:`.registry`), which the settings' choices are built from. Every law runs
+compiled, through one :class:`Controller` (:mod:`.base`): each module says what the law is and
+reads its settings into the compiled function.
 """
 
 from __future__ import annotations
 
-from turning_force.core.control.adaptive import AdaptiveController
-from turning_force.core.control.adaptive_pp import PolePlacementAdaptiveController
-from turning_force.core.control.adaptive_smc import AdaptiveSlidingModeController
-from turning_force.core.control.base import Controller, ControlOutput, sat
-from turning_force.core.control.pi import PIController
+from turning_force.core.control.base import Controller, ControlOutput, Law
 from turning_force.core.control.registry import CONTROLLERS
-from turning_force.core.control.rls import RecursiveLeastSquares
 from turning_force.core.control.settings import ControllerSettings
-from turning_force.core.control.smc import SlidingModeController
-from turning_force.core.control.staircase import StaircaseController
 
-__all__ = [
-    'CONTROLLERS',
-    'AdaptiveController',
-    'AdaptiveSlidingModeController',
-    'ControlOutput',
-    'Controller',
-    'ControllerSettings',
-    'PIController',
-    'PolePlacementAdaptiveController',
-    'RecursiveLeastSquares',
-    'SlidingModeController',
-    'StaircaseController',
-    'make_controller',
-    'sat',
-]
+__all__ = ['CONTROLLERS', 'ControlOutput', 'Controller', 'ControllerSettings', 'Law',
+           'make_controller']
 
 
 def make_controller(settings: ControllerSettings) -> Controller:
-    """The controller ``settings.controller`` names (validated by the settings)."""
-    return CONTROLLERS[settings.controller](settings)
+    """The controller running the law ``settings.controller`` names (validated by the
+    settings)."""
+    return Controller(settings)

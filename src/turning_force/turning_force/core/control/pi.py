@@ -1,30 +1,34 @@
-"""Fixed-gain PI, what commercial adaptive-feed options run."""
+"""Fixed-gain PI on the override with anti-windup by clamping the integral.
+
+``pct = I - kp (F - F_ref)``, ``I += -ki (F - F_ref) T``; where the output would pass a
+limit, the integral is set so that it sits on the limit, and it leaves the limit as soon as
+the error changes sign.
+
+What commercial adaptive-feed options run. The law runs compiled (``_pi`` in
+:mod:`turning_force.core.kernel.jit`); this module reads its settings into it.
+"""
 
 from __future__ import annotations
 
-from turning_force.core.control.base import Controller, ControlOutput
+from types import ModuleType
+from typing import TYPE_CHECKING
 
-__all__ = ['PIController']
+import numpy as np
+import numpy.typing as npt
+
+from turning_force.core.control.base import Law
+
+if TYPE_CHECKING:
+    from turning_force.core.control.settings import ControllerSettings
+
+__all__ = ['LAW']
+
+FloatArray = npt.NDArray[np.float64]
 
 
-class PIController(Controller):
-    """Fixed-gain PI on the override with anti-windup by clamping the integral.
+def fill(jit: ModuleType, c: ControllerSettings, p: FloatArray) -> tuple[FloatArray, int]:
+    p[jit.C_KP], p[jit.C_KI] = c.pi_kp_pct_per_n, c.pi_ki_pct_per_n_s
+    return p, 0
 
-    ``pct = I - kp (F - F_ref)``, ``I += -ki (F - F_ref) T``; where the output would pass a
-    limit, the integral is set so that it sits on the limit, and it leaves the limit as soon as
-    the error changes sign.
-    """
 
-    name = 'pi'
-
-    def reset(self) -> None:
-        self._integral_pct = self._held_pct
-
-    def _update(self, force_n: float, force_rate_n_s: float) -> ControlOutput:
-        c = self.settings
-        error = force_n - c.reference_force_n
-        proportional = -c.pi_kp_pct_per_n * error
-        integral = self._integral_pct - c.pi_ki_pct_per_n_s * error * c.control_period_s
-        self._integral_pct = min(max(integral, self.min_pct - proportional),
-                                 self.max_pct - proportional)
-        return ControlOutput(self._clip(self._integral_pct + proportional), error, 0.0)
+LAW = Law('pi', lambda jit: int(jit.PI), fill, 'fixed-gain PI with anti-windup')

@@ -1,21 +1,15 @@
-"""The control laws by name: the one list the settings' choices and ``make_controller`` use."""
+"""The control laws by name: the one list the settings' choices and the controller use."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 
-from turning_force.core.control.adaptive import AdaptiveController
-from turning_force.core.control.adaptive_pp import PolePlacementAdaptiveController
-from turning_force.core.control.adaptive_smc import AdaptiveSlidingModeController
-from turning_force.core.control.base import Controller
-from turning_force.core.control.pi import PIController
-from turning_force.core.control.smc import SlidingModeController
-from turning_force.core.control.staircase import StaircaseController
+from turning_force.core.control import adaptive, adaptive_pp, adaptive_smc, pi, smc, staircase
+from turning_force.core.control.base import Law
 
 __all__ = ['CONTROLLERS']
 
-CONTROLLERS: Mapping[str, type[Controller]] = {
-    cls.name: cls
-    for cls in (SlidingModeController, AdaptiveController, AdaptiveSlidingModeController,
-                PolePlacementAdaptiveController, PIController, StaircaseController)
+CONTROLLERS: Mapping[str, Law] = {
+    module.LAW.name: module.LAW
+    for module in (smc, adaptive, adaptive_smc, adaptive_pp, pi, staircase)
 }

@@ -1,30 +1,27 @@
 """The compiled kernel: plant, estimator, controllers, gate and quantiser as numba functions
-(:mod:`.jit`), bit for bit the plain Python reference's numbers, about a thousand times faster.
+(:mod:`.jit`), and the loader that puts their machine code in the user's cache.
 
-The core loop (:func:`turning_force.core.simulate.simulate`) runs whole stretches of blocks in
-it, and so do replay and the core loop that keeps what a session records
-(:mod:`turning_force.core.batch`: ``jit.replay_blocks``, ``jit.run_core_kept``); the nodes run
-the estimator and the controller on it one block at a time
-(:class:`turning_force.core.loop.ControlChain`, :mod:`.components`). The Python classes stay the
-reference; ``test/core/test_kernel.py`` holds the two to every trace and metric of every
-experiment file, the robustness matrix and the fault cases.
+The plant (:class:`turning_force.core.plant.LathePlant`), the estimator
+(:class:`turning_force.core.estimation.ForceEstimator`) and the control laws
+(:class:`turning_force.core.control.Controller`) are written once, here, and run compiled on
+every path: the nodes one block at a time, the core loop (:func:`.jit.run_core`), replay
+(:func:`.jit.replay_blocks`) and sweeps many blocks at once. The same functions run as plain
+Python under numba's own switch (``NUMBA_DISABLE_JIT=1``), for debugging and coverage.
 
-Where to use it is one rule, :func:`why_python`: the kernel runs a setting only if it knows
-that setting (the fields below, each read by :mod:`.pack`); a field it does not know, such as a
-behaviour added to the gate after it was written, sends the run to the Python path with the
-reason, never to different numbers. ``TURNING_FORCE_KERNEL=off`` in the environment does the
-same for every run; ``TURNING_FORCE_KERNEL=on`` asks for the kernel wherever it runs the
-settings, however short the run (:func:`forced`).
+The PMC gate is the one piece still written twice: the bridge's
+(:class:`turning_force.core.pmc.OverrideGate`, with the shop-floor behaviours) and the kernel's,
+which the core loop runs where no shop-floor behaviour is on. Where to use it is one rule,
+:func:`why_python`: a setting the kernel's gate does not know sends the core loop to the
+Python gate with the reason, never to different numbers. ``TURNING_FORCE_KERNEL=off`` does the
+same for every core loop; ``TURNING_FORCE_KERNEL=on`` asks for the kernel's loop wherever it
+runs the settings, however short the run (:func:`forced`).
 
-numba is imported only here, lazily: importing this package costs nothing; :func:`load`
-imports (and, with a cold cache, compiles: ``cache=True`` keeps the machine code on disk)
-the kernel, and :func:`load_in_background` does so on a thread while the first blocks run in
-Python.
+:func:`load` imports (and, with a cold cache, compiles: ``cache=True`` keeps the machine code in
+:func:`cache_dir`) the kernel.
 """
 
 from __future__ import annotations
 
-import atexit
 import contextlib
 import dataclasses
 import hashlib
@@ -40,11 +37,10 @@ from typing import Any
 
 from turning_force.core.settings import Settings
 
-__all__ = ['ENV', 'KNOWN', 'LAWS', 'LOADING', 'NEUTRAL', 'SOURCES', 'cache_dir', 'cache_is_warm',
-           'forced', 'load', 'load_in_background', 'loaded', 'why_python']
+__all__ = ['ENV', 'KNOWN', 'LAWS', 'NEUTRAL', 'SOURCES', 'cache_dir', 'cache_is_warm', 'forced',
+           'load', 'loaded', 'why_python']
 
 ENV = 'TURNING_FORCE_KERNEL'
-LOADING = 'the kernel is loading'   # Python until it has: see turning_force.core.loop
 
 # Every field of each section the kernel runs (pack.py reads these, or they do not change
 # the numbers: where the bridge's PMC bits go, the parameters' description).
@@ -114,7 +110,6 @@ NEUTRAL: Mapping[str, Mapping[str, Any]] = {
 
 _lock = threading.Lock()
 _module: ModuleType | None = None
-_loader: threading.Thread | None = None
 _error = ''
 
 
@@ -186,9 +181,6 @@ def load() -> ModuleType:
                 print(f'turning_force: compiling the kernel into {where} (once per install and '
                       'version: 15 to 60 s)', file=sys.stderr, flush=True)
             try:
-                import numba
-
-                numba.config.CACHE_DIR = str(where)   # type: ignore[attr-defined]
                 from turning_force.core.kernel import jit
             except Exception as exc:   # a broken numba install: say so, run Python
                 _error = f'the kernel did not load: {exc!r}'
@@ -236,25 +228,3 @@ def cache_is_warm() -> bool:
     hash of the sources, no numba."""
     stamp = cache_dir() / STAMP
     return stamp.is_file() and stamp.read_text().strip() == _source_hash()
-
-
-def load_in_background(wait_at_exit: bool = True) -> None:
-    """Start loading the kernel on a thread (once per process); :func:`loaded` says when it
-    is there. A process that ends first does not wait for a warm load; it waits for a
-    compilation (a cold cache, ``wait_at_exit``), so that the cache is written and the next
-    start is warm."""
-    global _loader
-    with _lock:
-        if _module is not None or _loader is not None:
-            return
-
-        def run() -> None:
-            try:
-                load()
-            except Exception:   # recorded in _error, which why_python reports
-                return
-
-        _loader = threading.Thread(target=run, name='turning-force-kernel', daemon=True)
-        if wait_at_exit and not cache_is_warm():
-            atexit.register(_loader.join)
-        _loader.start()

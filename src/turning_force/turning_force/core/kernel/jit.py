@@ -18,8 +18,14 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 from numba import njit
+
+from turning_force.core.kernel import cache_dir
+
+# Before any function below is decorated: numba keys its cache's place on this at decoration.
+numba.config.CACHE_DIR = str(cache_dir())
 
 _OPTIONS = {'cache': True, 'error_model': 'numpy', 'nogil': True}
 _SQRT3 = math.sqrt(3.0)
@@ -76,8 +82,10 @@ C_THETA0, C_P0, C_ST, C_FMIN, C_DEADZONE, C_RESET_TRACE, C_ACCEPT = 58, 62, 63, 
 C_POLE, C_BMIN, C_FREEZE = range(68, 71)      # adaptive_smc
 C_PP_W, C_PP_Z = 71, 72                       # adaptive_pp
 C_KP, C_KI = 73, 74                           # pi
-C_SC_PER, C_SC_N, C_SC_LEVELS = 75, 76, 77    # staircase: periods a level, levels, then them
-C_SIZE = 77
+C_SC_PER, C_SC_N = 75, 76                     # staircase: periods a level, levels
+C_BALANCE = 77                                # smc: the automatic layer's balance factor
+C_SC_LEVELS = 78                              # staircase: the levels, from here on
+C_SIZE = 78
 SMC, ADAPTIVE, ASMC, POLE_PLACEMENT, PI, STAIRCASE = range(6)
 PARK, INTEGRAL, NONLINEAR = range(3)
 # controller state
@@ -571,7 +579,8 @@ def _model_reset(cs: np.ndarray, x: int, nx: int, held: float) -> None:
 @njit(**_OPTIONS)
 def _model_advance(cp: np.ndarray, cs: np.ndarray, x: int, nx: int, phi: int, gamma: int,
                    servo_in: float) -> None:
-    """MachineModel.advance, one step: x = phi x + gamma u (each row summed in order)."""
+    """The predictor's model (:func:`..control.predictor.model_matrices`), one step:
+    x = phi x + gamma u (each row summed in order)."""
     x0, x1, x2 = cs[x], cs[x + 1], cs[x + 2]
     for i in range(nx):
         row = phi + 3 * i
@@ -594,7 +603,8 @@ def _rls_restart(cp: np.ndarray, cs: np.ndarray) -> None:
 @njit(**_OPTIONS)
 def _rls_update(cp: np.ndarray, cs: np.ndarray, x0: float, x1: float, x2: float, x3: float,
                 y: float) -> None:
-    """RecursiveLeastSquares.update (core/control/rls.py), four parameters."""
+    """Recursive least squares, four parameters (:mod:`..control.rls` states it: Hwang & Chen
+    Eqs. 33-39, Kim Eq. 15)."""
     x = np.array((x0, x1, x2, x3))
     if not (math.isfinite(y) and math.isfinite(x0) and math.isfinite(x1)
             and math.isfinite(x2) and math.isfinite(x3)):
@@ -661,7 +671,8 @@ def _rls_update(cp: np.ndarray, cs: np.ndarray, x0: float, x1: float, x2: float,
 
 @njit(**_OPTIONS)
 def controller_reset(cp: np.ndarray, cs: np.ndarray) -> None:
-    """Controller.reset of each law, from the held request."""
+    """Each law's fresh state (a new cut, or state that went non-finite), from the held
+    request."""
     kind = int(cp[C_KIND])
     held = cs[CS_HELD]
     if kind == SMC:
@@ -699,7 +710,8 @@ def controller_reset(cp: np.ndarray, cs: np.ndarray) -> None:
 
 @njit(**_OPTIONS)
 def _smc(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndarray) -> None:
-    """SlidingModeController._update (core/control/smc.py), with its Smith predictor."""
+    """Continuous sliding mode control (Park 1998, Eqs. 5-21; :mod:`..control.smc` states the
+    law) acting on the force its Smith predictor gives (:mod:`..control.predictor`)."""
     ref = cp[C_REF]
     measured_error = force - ref
     if cp[C_PRED] != 0.0:
@@ -728,6 +740,12 @@ def _smc(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndar
         s = rate + lam * error
         known = f + lam * rate
     else:
+        # With integral action: s = e' + 2 zeta lambda e + lambda^2 int(e); zeta = 1, or for
+        # the nonlinear surface a damping that rises as the error shrinks (El Khalick et al.
+        # 2012, after composite nonlinear feedback): zeta(e) = zeta_far + (zeta_near -
+        # zeta_far) exp(-(e / e_0)^2), low far from the reference (a fast approach), high near
+        # it (little overshoot); dzeta_e = d(zeta(e) e) / de, which the equivalent control
+        # needs. Products, not ** 2: libm's pow is not always x * x.
         zeta, dzeta_e = 1.0, 1.0
         if surface == NONLINEAR:
             near, far, scale = cp[C_NEAR], cp[C_FAR], cp[C_ESCALE]
@@ -741,10 +759,12 @@ def _smc(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndar
     if cp[C_EPS] > 0:
         epsilon = cp[C_EPS]
     else:
+        # The balance condition (Slotine & Li Sec. 7.2): K / Phi = lambda / C_BALANCE at
+        # F = F_ref, F' = 0, where K = |b_hat / b_min - 1| |a1| F_ref.
         b_ratio = math.sqrt(cp[C_KSD_MAX] / cp[C_KSD_MIN])
         a1_abs = 1.0 / (tau_s * tau_c)
         balance = abs(b_ratio - 1.0) * a1_abs * ref
-        epsilon = 3.0 * balance / (lam * lam)
+        epsilon = cp[C_BALANCE] * balance / (lam * lam)
     phi = epsilon * lam
     pct = _pct(cp, (-known - gain * pymin(pymax(s / phi, -1.0), 1.0)) / b_hat)
     if surface != PARK and cp[C_MIN] <= pct <= cp[C_MAX]:
@@ -754,7 +774,7 @@ def _smc(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndar
 
 @njit(**_OPTIONS)
 def _adaptive(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None:
-    """AdaptiveController._update (core/control/adaptive.py)."""
+    """The conventional adaptive controller (Masory & Koren 1980; :mod:`..control.adaptive`)."""
     dt = cp[C_PERIOD]
     cs[CS_AD_MODEL] += (cs[CS_AD_CMD] - cs[CS_AD_MODEL]) * (
         1.0 - math.exp(-dt / cp[C_MODEL_TAU]))
@@ -776,7 +796,9 @@ def _adaptive(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> 
 
 @njit(**_OPTIONS)
 def _asmc_control(cp: np.ndarray, cs: np.ndarray, y: float, y_ref: float) -> float:
-    """AdaptiveSlidingModeController._control: Eqs. 11-32 with Remarks 1-2."""
+    """Hwang & Chen 1990, Eqs. 11-32 with Remarks 1-2 (:mod:`..control.adaptive_smc`): the
+    feed-rate command u [mm/s] from the estimated model; u(k-1) held where the model cannot
+    carry the transformation (Remark 2, freezing)."""
     a1, a2 = -cs[CS_THETA], -cs[CS_THETA + 1]
     b1, b2 = cs[CS_THETA + 2], cs[CS_THETA + 3]
     cs[CS_SLIDING] = 0.0
@@ -809,7 +831,8 @@ def _asmc_control(cp: np.ndarray, cs: np.ndarray, y: float, y_ref: float) -> flo
 
 @njit(**_OPTIONS)
 def _asmc(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None:
-    """AdaptiveSlidingModeController._update (core/control/adaptive_smc.py)."""
+    """Discrete adaptive sliding mode control (Hwang & Chen 1990; :mod:`..control.adaptive_smc`):
+    RLS with variable forgetting (Eqs. 33-39), then the control (Eqs. 11-32)."""
     y, y_ref = force, cp[C_REF]
     if cs[CS_STARTED] != 0.0:
         _rls_update(cp, cs, cs[CS_Y], cs[CS_Y + 1], cs[CS_U], cs[CS_U + 1], y)
@@ -852,13 +875,13 @@ def _solve4(m: np.ndarray, rhs: np.ndarray, x: np.ndarray) -> bool:
 
 
 @njit(**_OPTIONS)
-def _pole_placement(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None:
-    """PolePlacementAdaptiveController._update (core/control/adaptive_pp.py)."""
-    y = force
-    y1, y2, u1, u2 = cs[CS_Y], cs[CS_Y + 1], cs[CS_U], cs[CS_U + 1]
-    if not math.isnan(y2):
-        _rls_update(cp, cs, -y1, -y2, u1, u2, y)
-    a1, a2, b0, b1 = cs[CS_THETA], cs[CS_THETA + 1], cs[CS_THETA + 2], cs[CS_THETA + 3]
+def pp_design(cp: np.ndarray, a1: float, a2: float, b0: float, b1: float,
+              solution: np.ndarray) -> bool:
+    """Kim's servo-compensator by pole placement: ``[r1, s0, s1, s2]`` into ``solution`` from
+    ``A (1 - q^-1) (1 + r1 q^-1) + B (s0 + s1 q^-1 + s2 q^-2) = A_m``, the coefficients of
+    ``q^-1 .. q^-4`` matched; ``A_m`` has the poles of a second-order loop of natural frequency
+    ``C_PP_W`` and damping ``C_PP_Z`` sampled at the control period (two more at the
+    origin). False where the system is singular (A and B share a root)."""
     w, z, dt = cp[C_PP_W], cp[C_PP_Z], cp[C_PERIOD]
     if z < 1.0:
         wd = w * math.sqrt(1.0 - z * z)
@@ -870,8 +893,20 @@ def _pole_placement(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarra
     matrix = np.array(((1.0, b0, 0.0, 0.0), (a1 - 1.0, b1, b0, 0.0),
                        (a2 - a1, 0.0, b1, b0), (-a2, 0.0, 0.0, b1)))
     rhs = np.array((m1 - (a1 - 1.0), m2 - (a2 - a1), a2, 0.0))
+    return _solve4(matrix, rhs, solution)
+
+
+@njit(**_OPTIONS)
+def _pole_placement(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None:
+    """Kim's adaptive controller (Kim Eqs. 12-24; :mod:`..control.adaptive_pp`): RLS on the
+    ARMA model, then the pole-placement servo-compensator (:func:`pp_design`)."""
+    y = force
+    y1, y2, u1, u2 = cs[CS_Y], cs[CS_Y + 1], cs[CS_U], cs[CS_U + 1]
+    if not math.isnan(y2):
+        _rls_update(cp, cs, -y1, -y2, u1, u2, y)
     solution = np.empty(4)
-    solved = _solve4(matrix, rhs, solution)
+    solved = pp_design(cp, cs[CS_THETA], cs[CS_THETA + 1], cs[CS_THETA + 2], cs[CS_THETA + 3],
+                       solution)
     ref = cp[C_REF]
     error = y - ref
     if not solved or math.isnan(y2):
@@ -888,7 +923,7 @@ def _pole_placement(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarra
 
 @njit(**_OPTIONS)
 def _pi(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None:
-    """PIController._update (core/control/pi.py)."""
+    """Fixed-gain PI with anti-windup by clamping the integral (:mod:`..control.pi`)."""
     error = force - cp[C_REF]
     proportional = -cp[C_KP] * error
     integral = cs[CS_PI_INT] - cp[C_KI] * error * cp[C_PERIOD]
@@ -898,7 +933,7 @@ def _pi(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None:
 
 @njit(**_OPTIONS)
 def _staircase(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None:
-    """StaircaseController._update (core/control/staircase.py)."""
+    """The commissioning staircase (:mod:`..control.staircase`)."""
     commands = int(cs[CS_SC_COMMANDS])
     index = (commands // int(cp[C_SC_PER])) % int(cp[C_SC_N])
     cs[CS_SC_COMMANDS] = commands + 1
@@ -908,7 +943,7 @@ def _staircase(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) ->
 
 @njit(**_OPTIONS)
 def _track_reach(cp: np.ndarray, cs: np.ndarray, request: float, error: float) -> float:
-    """Controller._track_reach: 1.0 while the reference can be reached, else 0.0."""
+    """1.0 while the reference can be reached, else 0.0 (:class:`..control.Controller`)."""
     tolerance = pymin(cp[C_GAP] / 2.0, 5.0)
     side = 0
     if request >= cp[C_MAX] - tolerance and error < 0.0:
@@ -955,8 +990,9 @@ def _recover(cp: np.ndarray, cs: np.ndarray, error: float, out: np.ndarray) -> N
 @njit(**_OPTIONS)
 def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force: float,
                       rate: float, out: np.ndarray) -> None:
-    """Controller.update (core/control/base.py): the law, the guard on its state, the
-    error-feedback quantiser and the reachability flag; out = (pct, error, s, reachable)."""
+    """One control period (:class:`..control.Controller` states it): the law, the guard on its
+    state, the error-feedback quantiser and the reachability flag;
+    out = (pct, error, s, reachable)."""
     error = force - cp[C_REF]
     if not (math.isfinite(force) and math.isfinite(rate)):
         _recover(cp, cs, error, out)
@@ -986,7 +1022,7 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
         wanted = _clip(cp, request + cs[CS_CARRY])
         sent = quantise(levels, continuous, wanted)
         cs[CS_CARRY] = pymin(pymax(request + cs[CS_CARRY] - sent, -cp[C_GAP]), cp[C_GAP])
-    if kind == SMC and cp[C_PRED] != 0.0:   # SlidingModeController._sent
+    if kind == SMC and cp[C_PRED] != 0.0:   # the predictor's models take the level sent
         level = quantise(levels, continuous, sent)
         mnx, dnx, qlen = int(cp[C_MNX]), int(cp[C_DNX]), int(cp[C_QLEN])
         for _ in range(int(cp[C_STEPS])):
@@ -1244,6 +1280,12 @@ def plant_block(pp, ps, times, depths, override_pct, noise_u, noise_v, noise_f, 
 def estimate_block(ep, es, t0, dt, u, v, angle, feed, work):
     """:func:`estimator_update` for one block from Python (the nodes, replay)."""
     return estimator_update(ep, es, t0, dt, u, v, angle, feed, work)
+
+
+@njit('void(float64[::1], float64[::1])', **_OPTIONS)
+def controller_start(cp, cs):
+    """A controller's first state, from the held request (``CS_HELD``) and its parameters."""
+    controller_reset(cp, cs)
 
 
 @njit('void(float64[::1], float64[::1], float64[::1], float64, float64, float64[::1])',
