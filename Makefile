@@ -57,6 +57,7 @@ reproduce: setup
 lint: setup
 	$(VENV)/bin/ruff check src test
 	$(VENV)/bin/mypy
+	$(VENV)/bin/lint-imports --no-cache
 
 # make test: every test but the slow ones (under 5 minutes on 2 cores, set-up included);
 # make test-all: all of them (the colcon workspace, every row of the robustness matrix).

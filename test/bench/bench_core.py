@@ -10,7 +10,7 @@ Prints, side by side so that the ratios hold on a noisy machine:
   fresh process): the default (a short run stays in Python, numba is not imported), and the
   kernel forced from the first period (``TURNING_FORCE_KERNEL=on``) with numba's cache cold
   (compiling) and warm (loading); and the import time of the command;
-- every row of the robustness matrix (turning_force.robustness) both ways.
+- every row of the robustness matrix (turning_force.commands.robustness) both ways.
 
 Run: ``.venv/bin/python test/bench/bench_core.py`` (or ``make bench``). Measures; asserts
 nothing (``test/core/test_kernel.py`` holds the kernel to the reference).
@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from turning_force import robustness
+from turning_force.commands import robustness
 from turning_force.core import kernel
 from turning_force.core.experiment import load_experiment
 from turning_force.core.simulate import simulate

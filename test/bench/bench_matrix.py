@@ -2,10 +2,10 @@
 
 Fig. 8 on fifteen machines, each for the SMC tuned from the machine's model, the fixed-gain PI
 and the conventional adaptive controller, with the floor no causal controller beats on that
-machine (:func:`turning_force.robustness.mean_floor_n`: a clairvoyant-from-the-step bang-bang
-controller on the noise-free plant with a continuous override). Then, side by side on the same
-machines, the SMC with the PMC's nearest level against the error-feedback quantiser, and the
-integral surface against El Khalick's nonlinear one. Run: ``.venv/bin/python
+machine (:func:`turning_force.commands.robustness.mean_floor_n`: a clairvoyant-from-the-step
+bang-bang controller on the noise-free plant with a continuous override). Then, side by side on
+the same machines, the SMC with the PMC's nearest level against the error-feedback quantiser,
+and the integral surface against El Khalick's nonlinear one. Run: ``.venv/bin/python
 test/bench/bench_matrix.py`` (or ``make bench``). It measures; it asserts nothing
 (``test/core/test_matrix.py`` holds the bands).
 """
@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from turning_force.robustness import (
+from turning_force.commands.robustness import (
     CONTROLLERS,
     MATRIX,
     mean_floor_n,

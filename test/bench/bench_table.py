@@ -18,7 +18,7 @@ Rows (Park 1998 Fig. 8 throughout; min / median of ``--runs`` runs where a row r
    report, replay;
 6. start-up to the first period: a one-period ``turning-force run --core --json`` in a fresh
    process, and the import time of the command;
-7. sweeps: 100 and 10,000 points of a fig8 grid through ``turning_force.sweep`` on all cores;
+7. sweeps: 100 and 10,000 points of a fig8 grid through ``commands.sweep`` on all cores;
    old: ``turning-force run --core`` once per point (3 measured, scaled) and the Python API
    serially (``with_sets`` + ``simulate``, 200 measured, scaled);
 8. the real-time graph's block-to-override latency as lathe_sim publishes it on
@@ -104,7 +104,7 @@ def core_loop(runs: int) -> None:
 
 
 def lockstep(runs: int) -> None:
-    from turning_force.session.run import run_lockstep
+    from turning_force.commands.run import run_lockstep
 
     fig8 = load_experiment(FIG8)
 
@@ -194,7 +194,7 @@ def startup(runs: int) -> None:
 
 
 def sweeps() -> None:
-    from turning_force.sweep import sweep
+    from turning_force.commands.sweep import sweep
 
     fig8 = load_experiment(FIG8)
     grid_100 = [f'{LAMBDA}=2:20:10', f'{EPSILON}=50:400:10']

@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_kernel import EXPERIMENTS, FIG8, FILES, IN_PYTHON
 
-from turning_force import robustness
+from turning_force.commands import robustness
 from turning_force.core.batch import (
     ChainTrace,
     CoreRun,

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from turning_force import robustness
+from turning_force.commands import robustness
 from turning_force.core import kernel
 from turning_force.core.control import ControllerSettings
 from turning_force.core.drive import CurrentBlock
@@ -157,13 +157,13 @@ def test_the_gates_decide_alike(table):
     # Commands in and out of range, non-finite ones, late ones (watchdog), forces over the
     # limit (hold) and saturated or refused estimates: the kernel's gate against OverrideGate.
     from turning_force.core.estimation import EstimateStatus
-    from turning_force.core.kernel import jit, pack
+    from turning_force.core.kernel import jit
     from turning_force.core.pmc import OverrideGate
 
     gate = OverrideGate(BridgeSettings(override_table=table, armed=True,
                                        safe_override_pct=0.0, overload_force_n=1500.0),
                         t_s=0.0)
-    params, state, levels = pack.gate_arrays(gate)
+    params, state, levels = gate.arrays()
     decision = np.empty(2)
     rng = np.random.default_rng(3)
     requests = [50.0, 149.0, 151.0, -1.0, math.nan, math.inf, 254.0, 37.4, 100.0]

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import pytest
 
-from turning_force.robustness import MATRIX, Scenario, run_scenario, scenario_experiment
+from turning_force.commands.robustness import MATRIX, Scenario, run_scenario, scenario_experiment
 
 # Rows that restate Fig. 8's own values (servo 0.17 s, 0.02 A of noise): the machine of 'dead
 # time 0 ms', with the same bands. They run in make test-all.

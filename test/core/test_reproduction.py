@@ -8,9 +8,9 @@ import math
 
 import pytest
 
+from turning_force.commands.papers import settled_forces
 from turning_force.core.experiment import load_experiment
 from turning_force.core.simulate import simulate
-from turning_force.papers import settled_forces
 
 
 @pytest.fixture(scope='module')

@@ -1,5 +1,5 @@
-"""turning_force.sweep: grids, sweeps closed loop and on a session, their tables and figures,
-the replay of several sessions, and the same results on local processes and on Dask."""
+"""turning_force.commands.sweep: grids, sweeps closed loop and on a session, their tables and
+figures, the replay of several sessions, and the same results on local processes and on Dask."""
 
 from __future__ import annotations
 
@@ -10,14 +10,8 @@ import sys
 
 import pytest
 
-from turning_force import sweep as sweep_module
-from turning_force.core.errors import ConfigError, TurningForceError
-from turning_force.core.experiment import load_experiment, parse_set
-from turning_force.core.metrics import METRIC_NAMES
-from turning_force.core.simulate import simulate
-from turning_force.session.reader import read_session
-from turning_force.session.replay import replay
-from turning_force.sweep import (
+from turning_force.commands import sweep as sweep_module
+from turning_force.commands.sweep import (
     BETTER,
     REPLAY_COLUMNS,
     Axis,
@@ -27,6 +21,12 @@ from turning_force.sweep import (
     replay_totals,
     sweep,
 )
+from turning_force.core.errors import ConfigError, TurningForceError
+from turning_force.core.experiment import load_experiment, parse_set
+from turning_force.core.metrics import METRIC_NAMES
+from turning_force.core.simulate import simulate
+from turning_force.session.reader import read_session
+from turning_force.session.replay import replay
 
 LAMBDA = 'force_controller.smc_lambda_per_s'
 EPSILON = 'force_controller.smc_epsilon_n'

@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from turning_force.commands.run import run_lockstep
 from turning_force.core.experiment import load_experiment
 from turning_force.session.bag import BagError
 from turning_force.session.calibrate import calibrate
 from turning_force.session.reader import read_session
-from turning_force.session.run import run_lockstep
 
 EXPERIMENTS = Path(__file__).resolve().parents[2] / 'config' / 'experiments'
 

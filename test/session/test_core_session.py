@@ -14,12 +14,12 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from turning_force.cli import main
+from turning_force.commands.core_session import NOT_RECORDED, RECORDER, TOPICS, record_core
+from turning_force.commands.run import run_lockstep
 from turning_force.core.experiment import load_experiment
 from turning_force.nodes.session_recorder import GRAPH_TOPICS, msgtype
 from turning_force.session.bag import CUSTOM_EXPERIMENT, CUSTOM_PARAMETERS
-from turning_force.session.core_session import NOT_RECORDED, RECORDER, TOPICS, record_core
 from turning_force.session.reader import read_session, recorded_metrics
-from turning_force.session.run import run_lockstep
 
 # Three seconds of fig8: the first depth, settled, and the tool out of the cut from 2 s (a cut
 # that ends: the cut log).

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from turning_force.cli import main
+from turning_force.commands.run import run_lockstep
 from turning_force.core.experiment import load_experiment
 from turning_force.core.overlay import with_parameters_file
 from turning_force.session.identify import recording_from_session
 from turning_force.session.reader import read_session
-from turning_force.session.run import run_lockstep
 
 EXPERIMENTS = Path(__file__).resolve().parents[2] / 'config' / 'experiments'
 SHORT = ['force_controller.staircase_step_s=0.5', 'experiment.duration_s=10.5',

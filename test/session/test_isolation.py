@@ -15,11 +15,11 @@ from rclpy.node import Node
 from rosbags.highlevel import AnyReader
 from turning_force_msgs.msg import FeedOverride, ServoCurrents
 
+from turning_force.commands.run import foreign_endpoints, run_lockstep
 from turning_force.core.experiment import load_experiment
 from turning_force.core.simulate import simulate
 from turning_force.session.bag import typestore
 from turning_force.session.reader import read_session, recorded_metrics
-from turning_force.session.run import foreign_endpoints, run_lockstep
 
 # Another graph in its own process, on this process's domain and discovery settings: it
 # publishes what a second run or a machine would (currents, estimates, commands, a 0 % feed

@@ -14,11 +14,11 @@ from rosbags.highlevel import AnyReader
 
 from modbus_helpers import write_machine
 from turning_force.cli import main
+from turning_force.commands.run import run_lockstep
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import load_experiment
 from turning_force.session.bag import typestore
 from turning_force.session.reader import read_session, recorded_metrics
-from turning_force.session.run import run_lockstep
 
 ROOT = Path(__file__).resolve().parents[2]
 FIG8 = ROOT / 'config' / 'experiments' / 'park1998_fig8.yaml'

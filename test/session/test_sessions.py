@@ -15,6 +15,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
+from turning_force.commands.run import run_lockstep
 from turning_force.core.experiment import load_experiment
 from turning_force.core.simulate import simulate
 from turning_force.session.bag import (
@@ -28,7 +29,6 @@ from turning_force.session.bag import (
 from turning_force.session.reader import read_session, recorded_metrics
 from turning_force.session.replay import replay
 from turning_force.session.report import write_report
-from turning_force.session.run import run_lockstep
 
 # force/measured: a dynamometer's, recorded where one is fitted (none here: no messages).
 TOPICS = {'/servo/currents', '/servo/joint_state', '/sim/cutting_state', '/force/estimate',

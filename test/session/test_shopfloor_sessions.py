@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
+from turning_force.commands.run import run_lockstep
 from turning_force.core.experiment import load_experiment
 from turning_force.core.loop import ControlChain
 from turning_force.core.plant import LathePlant
@@ -18,7 +19,6 @@ from turning_force.core.pmc import Reason
 from turning_force.session.reader import read_session, recorded_metrics
 from turning_force.session.replay import replay
 from turning_force.session.report import cut_table, write_html_report, write_report
-from turning_force.session.run import run_lockstep
 
 EXPERIMENTS = Path(__file__).resolve().parents[2] / 'config' / 'experiments'
 

@@ -13,7 +13,7 @@
   the same changes, on local processes or a Dask cluster: one row per session and the totals.
 - ``sweep EXPERIMENT --grid node.param=START:STOP:N ... [--replay BAG] [--metric NAME]
   [--top K] [--out FILE.csv|.parquet] [--figure FILE.png] [--jobs N] [--dask ADDRESS]``:
-  every combination of the grid (turning_force.sweep), the best printed.
+  every combination of the grid (turning_force.commands.sweep), the best printed.
 - ``report BAG [--out FILE.png|FILE.html]``: the paper-style figure and the metrics.
 - ``calibrate BAG BAG ... [--settle-s S] [--json]``: friction (Park Eq. 25) from air-cut
   sessions at two or more feeds, printed as ``force_estimator`` parameters.
@@ -106,7 +106,7 @@ def _warn(session: Any) -> None:
 
 def _lockstep(args: argparse.Namespace, experiment: Any, bag: Path) -> Any:
     """The lock-step run, stopped between two steps by SIGINT or SIGTERM."""
-    from turning_force.session.run import print_progress, run_lockstep
+    from turning_force.commands.run import print_progress, run_lockstep
 
     step = [0, 0]
     with _signals(defer=True) as received:
@@ -159,13 +159,13 @@ def _check_writable(out: Path, flag: str, new: bool) -> None:
 def _run(args: argparse.Namespace) -> int:
     experiment = _load(args.experiment, args.params, args.set)
     if args.core and args.out:
-        from turning_force.session.core_session import record_core
+        from turning_force.commands.core_session import record_core
 
         bag = Path(args.out)
         _check_writable(bag, '--out', new=True)
         progress: Callable[[int, int], None] | None = None
         if not args.json and sys.stderr.isatty():   # (session.run imports rclpy)
-            from turning_force.session.run import print_progress
+            from turning_force.commands.run import print_progress
 
             progress = print_progress
         with _signals(defer=False):
@@ -231,12 +231,12 @@ def _replay(args: argparse.Namespace) -> int:
     session = read_session(bag, args.partial)
     _warn(session)
     if args.publish:
-        from turning_force.session.play import play
+        from turning_force.commands.play import play
 
         play(Path(bag), args.rate, partial=args.partial)
         return 0
+    from turning_force.commands.run import print_progress
     from turning_force.session.replay import replay
-    from turning_force.session.run import print_progress
 
     if args.experiment:
         session.experiment = load_experiment(args.experiment)
@@ -283,8 +283,8 @@ def _replay_many(args: argparse.Namespace) -> int:
     """Several sessions (or one on a Dask cluster), replayed with the same changes: one row
     per session and the totals; a session that fails is its row's error, a line on stderr,
     and exit status 2 once the others are done."""
+    from turning_force.commands.sweep import replay_sessions, replay_totals
     from turning_force.core.overlay import read_parameters
-    from turning_force.sweep import replay_sessions, replay_totals
 
     if args.publish:
         raise TurningForceError('--publish plays one session; give one BAG, without --dask')
@@ -350,7 +350,7 @@ def _progress(args: argparse.Namespace) -> bool:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from turning_force.sweep import BETTER, parse_grid, sweep
+    from turning_force.commands.sweep import BETTER, parse_grid, sweep
 
     axes = parse_grid(args.grid)   # the grid's syntax before any file is read
     if args.top < 1:
@@ -409,7 +409,7 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _print_sweep(args: argparse.Namespace, result: Any, best: list[dict[str, Any]]) -> None:
-    from turning_force.sweep import BETTER
+    from turning_force.commands.sweep import BETTER
 
     axes = result.axes
     shape = ' x '.join(f'{len(a.values)} {a.name}' for a in axes)
@@ -656,7 +656,7 @@ def _print_identification(ident: Any, ksd_min: float, ksd_max: float, margin: fl
 
 
 def _reproduce(args: argparse.Namespace) -> int:
-    from turning_force.papers import format_table, reproduce
+    from turning_force.commands.papers import format_table, reproduce
 
     results = reproduce(Path(args.dir))
     if args.json:

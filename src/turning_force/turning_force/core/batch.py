@@ -453,11 +453,8 @@ def _replay_compiled(chain: ControlChain, currents: CurrentArrays,
                      arm_changes: Sequence[tuple[float, bool]],
                      progress: Callable[[int, int], None] | None = None) -> ChainTrace:
     """The kernel's replay, from the (fresh) Python chain's state."""
-    from turning_force.core.kernel import pack
-
     jit = kernel.load()
-    ep, es, cp, cs, clevels, gp, gs, glevels = pack.chain_arrays(chain,
-                                                                 currents.sample_period_s)
+    ep, es, cp, cs, clevels, gp, gs, glevels = chain.arrays(currents.sample_period_s)
     n = len(currents)
     # The kernel's rows a chunk at a time, into the trace as each is done: an hour's replay
     # holds the trace and one chunk of rows, not a second copy of the trace.

@@ -24,6 +24,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+import numpy.typing as npt
+
 from turning_force.core.control import (
     Controller,
     ControllerSettings,
@@ -37,6 +40,8 @@ from turning_force.core.pmc import BridgeSettings, Decision, OverrideGate
 from turning_force.core.shopfloor import CutRecord, InputValues, Learned, taught_reference
 
 __all__ = ['ChainStep', 'ControlChain', 'command_for', 'command_for_would_act']
+
+FloatArray = npt.NDArray[np.float64]
 
 
 def command_for_would_act(estimate: ForceEstimate) -> bool:
@@ -114,6 +119,17 @@ class ControlChain:
                 self.controller.settings, learned.taught.reference_force_n, self.gate.settings))
         self.cuts.extend(self.gate.take_cuts())
         return ChainStep(estimate, command, decision, learned)
+
+    def arrays(self, sample_period_s: float) -> tuple[FloatArray, ...]:
+        """(estimator parameters, state, controller parameters, state, levels, gate
+        parameters, state, levels) as the compiled loops take them, the estimator's filter set
+        for blocks sampled at ``sample_period_s`` (where that is a sample period). The
+        estimator's and the controller's arrays are their own (live); the gate's are copies
+        (:meth:`OverrideGate.arrays`)."""
+        ep, es = self.estimator.arrays_for(sample_period_s)
+        cp, cs, clevels = self.controller.arrays
+        gp, gs, glevels = self.gate.arrays()
+        return ep, es, cp, cs, clevels, gp, gs, glevels
 
     def close(self) -> list[CutRecord]:
         """The end of the session: every cut, the one still open marked incomplete."""

@@ -36,7 +36,10 @@ import enum
 import math
 from dataclasses import dataclass
 
-from turning_force.core import shared
+import numpy as np
+import numpy.typing as npt
+
+from turning_force.core import kernel, shared
 from turning_force.core.estimation import EstimateStatus
 from turning_force.core.overrides import OverrideTable, get_table
 from turning_force.core.settings import setting
@@ -52,6 +55,8 @@ from turning_force.core.shopfloor import (
 )
 
 __all__ = ['BridgeSettings', 'Decision', 'OverrideGate', 'Reason']
+
+FloatArray = npt.NDArray[np.float64]
 
 
 class Reason(enum.IntEnum):
@@ -300,6 +305,34 @@ class OverrideGate:
         if dial is not None and dial < pct:
             return dial, reason, f"{detail}; the operator's dial at {dial:g} %", None
         return pct, reason, detail, None
+
+    def arrays(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(parameters, state, levels) of this gate now, as the kernel's gate (``gate_decide``
+        and its neighbours in :mod:`turning_force.core.kernel.jit`) takes them: copies, from
+        which a compiled loop goes on with the same decisions. The kernel's gate runs the
+        safety gate, the cut detector and the overload reaction's outputs; where a shop-floor
+        behaviour it does not run is on, :func:`turning_force.core.kernel.why_python` says so
+        and the loop stays on this one."""
+        jit = kernel.load()
+        s, shop = self.settings, self.shop
+        p = np.zeros(jit.G_SIZE)
+        p[jit.G_WATCHDOG], p[jit.G_SAFE] = s.watchdog_period_s, s.safe_override_pct
+        p[jit.G_OVERLOAD], p[jit.G_ARMED] = s.overload_force_n, s.armed
+        p[jit.G_CONT] = self.table.continuous
+        p[jit.G_ENGAGE], p[jit.G_EXIT] = s.engage_force_n, s.exit_force_n
+        p[jit.G_DEBOUNCE], p[jit.G_REACT_LIMIT] = shop._debounce, shop.reaction_limit_n
+        p[jit.G_REACT_NEEDED] = math.ceil(s.reaction_delay_s / shop.period_s - 1e-9)
+        reactions = {'alarm': jit.REACTION_ALARM, 'stop': jit.REACTION_STOP}
+        p[jit.G_REACTION] = reactions.get(s.overload_reaction, jit.REACTION_NONE)
+        state = np.zeros(jit.GS_SIZE)
+        state[jit.GS_ARMED], state[jit.GS_STARTED] = self.armed, self.started
+        state[jit.GS_REQ], state[jit.GS_CMD_T] = self._requested, self._command_t_s
+        state[jit.GS_ARMED_T], state[jit.GS_HOLD] = self._armed_t_s, bool(self._overload)
+        state[jit.GS_LAST_F] = self._last_force_n
+        state[jit.GS_LAST_STATUS] = int(self._last_status)
+        state[jit.GS_ENGAGED], state[jit.GS_RUN] = shop.engaged, shop._run
+        state[jit.GS_ABOVE], state[jit.GS_REACTED] = shop._above, bool(shop._reaction)
+        return p, state, np.array(self.table.levels_pct, dtype=np.float64)
 
     def _decision(self, pct: float, reason: Reason, detail: str) -> Decision:
         applied = self.table.quantise(pct)

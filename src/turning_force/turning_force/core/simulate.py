@@ -171,13 +171,11 @@ def run_loop(experiment: Experiment, compiled: bool | None = None, python_blocks
 def _run_compiled(plant: LathePlant, chain: ControlChain, applied: float, out: ControlOutput,
                   rows: FloatArray, first: int, steps: int, keeper: Keeper | None = None) -> None:
     """Blocks ``first`` .. ``steps - 1`` on the kernel, from the Python objects' state now."""
-    from turning_force.core.kernel import pack
-
     jit = kernel.load()
     pp, ps, times, depths = plant.arrays
     ep, es = chain.estimator.arrays_for(float(pp[jit.P_DT]))
     cp, cs, clevels = chain.controller.arrays
-    gp, gs, glevels = pack.gate_arrays(chain.gate)
+    gp, gs, glevels = chain.gate.arrays()
     last = np.array([out.override_pct, out.sliding_variable, float(out.reachable)])
     for start in range(first, steps, CHUNK_BLOCKS):
         end = min(start + CHUNK_BLOCKS, steps)

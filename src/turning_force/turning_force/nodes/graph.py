@@ -10,7 +10,7 @@ and activated once the graph exists, and deactivated (the feed handed back) and 
 (the module released) when the process stops. On a desk, a machine file whose module is on
 127.0.0.1 is served by a simulated PMC on Modbus/TCP for the graph's lifetime.
 
-(``turning-force run`` composes the nodes in lock-step instead: :mod:`turning_force.session.run`.)
+(``turning-force run`` composes the nodes in lock-step instead: :mod:`turning_force.commands.run`.)
 """
 
 from __future__ import annotations

@@ -19,6 +19,7 @@ So that a session survives what a shop does to it:
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import json
 import os
 import platform
@@ -49,7 +50,7 @@ from rosbags.rosbag2.storage_mcap import (
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from turning_force.core.errors import TurningForceError
+from turning_force.core.errors import ConfigError, TurningForceError
 
 __all__ = [
     'CUSTOM_EXPERIMENT',
@@ -88,9 +89,12 @@ def _msg_dir() -> Path:
             return installed
     except (ImportError, LookupError, OSError, ValueError):  # no ament index here
         pass
-    import turning_force_msgs  # the generated package sits in the prefix beside share/
-
-    prefix = Path(turning_force_msgs.__file__).resolve().parents[4]
+    # The generated package sits in the prefix beside share/: found, not imported (the session
+    # layer reads .msg text and never loads ROS).
+    spec = importlib.util.find_spec(MSG_PACKAGE)
+    if spec is None or spec.origin is None:
+        raise ConfigError(f'{MSG_PACKAGE}: not installed (make setup builds it)')
+    prefix = Path(spec.origin).resolve().parents[4]
     return prefix / 'share' / MSG_PACKAGE / 'msg'
 
 

@@ -27,7 +27,8 @@ reads its settings into the compiled function.
 
 from __future__ import annotations
 
-from turning_force.core.control.base import Controller, ControlOutput, Law
+from turning_force.core.control.base import Controller, ControlOutput
+from turning_force.core.control.law import Law
 from turning_force.core.control.registry import CONTROLLERS
 from turning_force.core.control.settings import ControllerSettings
 

@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core.control import rls
-from turning_force.core.control.base import Law
+from turning_force.core.control.law import Law
 
 if TYPE_CHECKING:
     from turning_force.core.control.settings import ControllerSettings

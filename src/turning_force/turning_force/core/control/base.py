@@ -1,7 +1,7 @@
 """What every control law shares: the controller that runs it, its output, the guard on its
 state, the error-feedback quantiser and the reachability flag.
 
-A law is a module of this package with a :class:`Law` entry in :mod:`.registry`: its name, its
+A law is a module of this package with a :class:`.law.Law` entry in :mod:`.registry`: its name, its
 number in the compiled dispatch, and the function that reads its settings into the compiled
 parameters. Its arithmetic is written once, as a compiled function of
 :mod:`turning_force.core.kernel.jit` (``controller_update`` and the law's own function beside
@@ -11,7 +11,6 @@ it); :class:`Controller` runs it one period at a time, the compiled loops many p
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
 from dataclasses import dataclass
 from types import ModuleType
 from typing import TYPE_CHECKING
@@ -20,12 +19,13 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core import kernel
+from turning_force.core.control.registry import CONTROLLERS
 from turning_force.core.overrides import OverrideTable, get_table
 
 if TYPE_CHECKING:
     from turning_force.core.control.settings import ControllerSettings
 
-__all__ = ['ControlOutput', 'Controller', 'Law']
+__all__ = ['ControlOutput', 'Controller']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -45,21 +45,6 @@ class ControlOutput:
     error_n: float
     sliding_variable: float
     reachable: bool = True
-
-
-@dataclass(frozen=True)
-class Law:
-    """A control law as the compiled controller runs it.
-
-    ``kind``: its number in ``controller_update``'s dispatch (``jit.SMC``, ...). ``fill``: reads
-    the law's settings (and what it derives from them: models, initial estimates) into the
-    parameters ``p`` (``C_*`` slots); returns the parameters (a longer array where the law
-    needs more slots) and the length of the state's queue (``CS_QUEUE`` on)."""
-
-    name: str
-    kind: Callable[[ModuleType], int]
-    fill: Callable[[ModuleType, ControllerSettings, FloatArray], tuple[FloatArray, int]]
-    summary: str
 
 
 class Controller:
@@ -130,8 +115,6 @@ class Controller:
 def _params(jit: ModuleType, c: ControllerSettings,
             table: OverrideTable) -> tuple[FloatArray, int]:
     """The compiled controller's parameters (``C_*``) and its queue's length."""
-    from turning_force.core.control.registry import CONTROLLERS
-
     law = CONTROLLERS[c.controller]
     p = np.zeros(jit.C_SIZE)
     p[jit.C_KIND] = law.kind(jit)

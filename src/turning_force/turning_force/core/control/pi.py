@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.control.base import Law
+from turning_force.core.control.law import Law
 
 if TYPE_CHECKING:
     from turning_force.core.control.settings import ControllerSettings

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from turning_force.core.control import adaptive, adaptive_pp, adaptive_smc, pi, smc, staircase
-from turning_force.core.control.base import Law
+from turning_force.core.control.law import Law
 
 __all__ = ['CONTROLLERS']
 

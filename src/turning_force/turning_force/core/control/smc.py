@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.control.base import Law
+from turning_force.core.control.law import Law
 from turning_force.core.control.predictor import (
     MODEL_STEP_S,
     design_time_constant_s,

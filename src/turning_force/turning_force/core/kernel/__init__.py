@@ -42,8 +42,8 @@ __all__ = ['ENV', 'KNOWN', 'LAWS', 'NEUTRAL', 'SOURCES', 'cache_dir', 'cache_is_
 
 ENV = 'TURNING_FORCE_KERNEL'
 
-# Every field of each section the kernel runs (pack.py reads these, or they do not change
-# the numbers: where the bridge's PMC bits go, the parameters' description).
+# Every field of each section the kernel runs (the arrays are filled from these, or they do
+# not change the numbers: where the bridge's PMC bits go, the parameters' description).
 KNOWN: Mapping[str, frozenset[str]] = {
     'force_estimator': frozenset((
         'friction_min_feed_mm_min', 'friction_max_feed_mm_min', 'friction_at_min_feed_a',

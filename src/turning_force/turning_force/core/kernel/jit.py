@@ -8,7 +8,8 @@ where it uses Python's ``min``/``max`` their tie rules (:func:`pymin`, :func:`py
 by zero gives IEEE infinities (``error_model='numpy'``), as numpy and
 :func:`turning_force.core.lti.div` do. The slot numbers live here, next to the code that reads
 them, so that numba's on-disk cache (keyed on this file) can never pair old code with new
-slots; :mod:`.pack` fills the arrays.
+slots; the objects that own them (the plant, the estimator, the controller, the gate)
+fill the arrays.
 
 Entry points have explicit signatures: importing this module compiles them, or with a warm
 cache (``cache=True``, in :func:`turning_force.core.kernel.cache_dir`) loads them from disk.

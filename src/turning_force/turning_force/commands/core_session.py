@@ -2,7 +2,7 @@
 
 :func:`turning_force.core.batch.run_core` keeps every block of a closed-loop run (the DAQ's
 samples, the chain's estimate, command and decision, the plant's state); this writes them as the
-lock-step graph's session (:func:`turning_force.session.run.run_lockstep` with
+lock-step graph's session (:func:`turning_force.commands.run.run_lockstep` with
 ``session_recorder``) holds them: the same topics and message types, each message with the
 stamps and fields the node that publishes it gives it (``lathe_sim``: ``machine/inputs``,
 ``servo/currents``, ``servo/joint_state``, ``sim/cutting_state``; ``force_estimator``,

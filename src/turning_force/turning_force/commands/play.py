@@ -22,10 +22,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from turning_force_msgs.msg import ServoCurrents
 
+from turning_force.commands.run import print_progress
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.session.bag import BagError
 from turning_force.session.reader import read_recording, read_session
-from turning_force.session.run import print_progress
 
 __all__ = ['SENSOR_TOPICS', 'play']
 

@@ -1,0 +1,34 @@
+"""One source: every algorithm is one compiled function, and every path of the product runs it.
+
+For each path (the node graph, the core loop, replay, a sweep), a probe replaces one function at
+a time in the kernel's module under ``NUMBA_DISABLE_JIT=1`` (where a compiled caller looks it up
+as the Python it is) and the path is run: the probe must be reached, so no second copy of the
+algorithm serves that path. The plant is not on replay's path (it replays recorded currents).
+
+The PMC gate is not in this list yet: the graph's bridge runs its own (``core/pmc.py`` with the
+shop-floor behaviours), the core loop the kernel's, and ``test_kernel.py`` holds the two alike.
+"""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PROBE = Path(__file__).with_name('one_source_probe.py')
+LAWS = ['_smc', '_pi@pi', '_adaptive@adaptive', '_asmc@adaptive_smc',
+        '_pole_placement@adaptive_pp', '_staircase@staircase']
+ALGORITHMS = ['plant_step', 'estimator_update', 'controller_update', *LAWS]
+
+
+@pytest.mark.parametrize('path', ['run', 'run-core', 'replay', 'sweep'])
+def test_every_path_reaches_each_algorithm_s_one_function(path):
+    env = {**os.environ, 'NUMBA_DISABLE_JIT': '1'}
+    probe = subprocess.run([sys.executable, str(PROBE), path, *ALGORITHMS], env=env,
+                           capture_output=True, text=True, timeout=300, check=False)
+    assert probe.returncode == 0, probe.stderr[-3000:]
+    lines = [line for line in probe.stdout.splitlines() if 'reached' in line]
+    expected = [f'not reached: {name} on {path}' if (path, name) == ('replay', 'plant_step')
+                else f'reached {name} on {path}' for name in ALGORITHMS]
+    assert lines == expected
