@@ -18,6 +18,8 @@ cache (``cache=True``, in :func:`turning_force.core.kernel.cache_dir`) loads the
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
 
 import numba
 import numpy as np
@@ -26,9 +28,25 @@ from numba import njit
 from turning_force.core.kernel import cache_dir
 
 # Before any function below is decorated: numba keys its cache's place on this at decoration.
-numba.config.CACHE_DIR = str(cache_dir())
+numba.config.CACHE_DIR = str(cache_dir())   # type: ignore[attr-defined]
 
-_OPTIONS = {'cache': True, 'error_model': 'numpy', 'nogil': True}
+_F = TypeVar('_F', bound=Callable[..., Any])
+Arr = np.ndarray   # float64, C-contiguous: what the entry points' signatures say
+
+
+def compiled(function: _F) -> _F:
+    """The one switchboard of numba's options: cached on disk, numpy's error model (a division
+    by zero gives IEEE infinities), the GIL released. Compiled at the first call from Python or
+    from another compiled function."""
+    return cast(_F, njit(cache=True, error_model='numpy', nogil=True)(function))
+
+
+def entry(signature: str) -> Callable[[_F], _F]:
+    """An entry point from Python: compiled for ``signature`` when this module is imported (or
+    loaded from the cache), so that no call from Python compiles on its way."""
+    def decorate(function: _F) -> _F:
+        return cast(_F, njit(signature, cache=True, error_model='numpy', nogil=True)(function))
+    return decorate
 _SQRT3 = math.sqrt(3.0)
 _TWO_PI = 2.0 * math.pi
 
@@ -127,25 +145,25 @@ CHAIN_COLUMNS = 21
 
 # --- Python's and numpy's scalar rules ------------------------------------------------------
 
-@njit(**_OPTIONS)
+@compiled
 def pymax(a: float, b: float) -> float:
     """Python's ``max(a, b)``: the first of equals."""
     return b if b > a else a
 
 
-@njit(**_OPTIONS)
+@compiled
 def pymin(a: float, b: float) -> float:
     """Python's ``min(a, b)``."""
     return b if b < a else a
 
 
-@njit(**_OPTIONS)
+@compiled
 def pymod(a: float, b: float) -> float:
     """Python's float ``%`` (and ``np.mod``): numba's ``%`` follows CPython's float_rem."""
     return a % b
 
 
-@njit(**_OPTIONS)
+@compiled
 def npsign(x: float) -> float:
     if x > 0.0:
         return 1.0
@@ -156,7 +174,7 @@ def npsign(x: float) -> float:
     return x
 
 
-@njit(**_OPTIONS)
+@compiled
 def isclose(a: float, b: float, rel_tol: float) -> bool:
     """``math.isclose(a, b, rel_tol=rel_tol)``."""
     if a == b:
@@ -167,7 +185,7 @@ def isclose(a: float, b: float, rel_tol: float) -> bool:
     return diff <= abs(rel_tol * b) or diff <= abs(rel_tol * a) or diff <= 0.0
 
 
-@njit(**_OPTIONS)
+@compiled
 def _pairwise_leaf(a: np.ndarray, lo: int, n: int) -> float:
     """numpy's pairwise sum of up to 128 values: eight running sums, then a tree."""
     if n < 8:
@@ -195,7 +213,7 @@ def _pairwise_leaf(a: np.ndarray, lo: int, n: int) -> float:
     return res
 
 
-@njit(**_OPTIONS)
+@compiled
 def pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
     """numpy's pairwise summation (``np.add.reduce``, and so ``np.mean``) of a[lo:lo+n]:
     past 128 values, the halves (the first a multiple of 8) summed alike and added. The
@@ -233,7 +251,7 @@ def pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
                 return ret
 
 
-@njit(**_OPTIONS)
+@compiled
 def quantise(levels: np.ndarray, continuous: bool, pct: float) -> float:
     """OverrideTable.quantise on a finite request."""
     x = pymin(pymax(pct, levels[0]), levels[levels.size - 1])
@@ -253,7 +271,7 @@ def quantise(levels: np.ndarray, continuous: bool, pct: float) -> float:
 
 # --- the feed drive (core/drive.py) ---------------------------------------------------------
 
-@njit(**_OPTIONS)
+@compiled
 def friction_current(a: float, b: float, vmin: float, vmax: float, feed: float) -> float:
     """FrictionModel.current_a at one feed rate (Park Eq. 25)."""
     speed = abs(feed)
@@ -268,7 +286,7 @@ def friction_current(a: float, b: float, vmin: float, vmax: float, feed: float) 
 
 # --- the plant (core/plant.py LathePlant.step) ----------------------------------------------
 
-@njit(**_OPTIONS)
+@compiled
 def depth_at(times: np.ndarray, depths: np.ndarray, linear: bool, t: float) -> float:
     """DepthProfile.at: held steps (searchsorted right) or np.interp."""
     m = times.size
@@ -294,7 +312,7 @@ def depth_at(times: np.ndarray, depths: np.ndarray, linear: bool, t: float) -> f
     return out
 
 
-@njit(**_OPTIONS)
+@compiled
 def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.ndarray,
                override_pct: float, noise_u: np.ndarray, noise_v: np.ndarray,
                noise_f: np.ndarray, noise_fr: np.ndarray, lo: int, u: np.ndarray,
@@ -392,7 +410,7 @@ def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.nda
 
 # --- the estimator (core/estimation.py ForceEstimator.update) -------------------------------
 
-@njit(**_OPTIONS)
+@compiled
 def _invalid(es: np.ndarray, code: int, a: float, b: float) -> int:
     if es[ES_ACTIVE] != 0.0:
         es[ES_ACTIVE] = 0.0
@@ -402,7 +420,7 @@ def _invalid(es: np.ndarray, code: int, a: float, b: float) -> int:
     return INVALID_INPUT
 
 
-@njit(**_OPTIONS)
+@compiled
 def _stamp_problem(ep: np.ndarray, es: np.ndarray, t0: float, dt: float, n: int) -> int:
     """ForceEstimator._check_stamp: a detail code, or D_NONE (values in ES_DVAL)."""
     if not math.isfinite(t0):
@@ -434,7 +452,7 @@ def _stamp_problem(ep: np.ndarray, es: np.ndarray, t0: float, dt: float, n: int)
     return problem
 
 
-@njit(**_OPTIONS)
+@compiled
 def estimator_update(ep: np.ndarray, es: np.ndarray, t0: float, dt: float, u: np.ndarray,
                      v: np.ndarray, angle: np.ndarray, feed: np.ndarray,
                      work: np.ndarray) -> int:
@@ -554,22 +572,22 @@ def estimator_update(ep: np.ndarray, es: np.ndarray, t0: float, dt: float, u: np
 
 # --- the controllers (core/control) ---------------------------------------------------------
 
-@njit(**_OPTIONS)
+@compiled
 def _clip(cp: np.ndarray, pct: float) -> float:
     return pymin(pymax(pct, cp[C_MIN]), cp[C_MAX])
 
 
-@njit(**_OPTIONS)
+@compiled
 def _pct(cp: np.ndarray, feed_rate: float) -> float:
     return 100.0 * feed_rate / cp[C_FEED_RATE]
 
 
-@njit(**_OPTIONS)
+@compiled
 def _feed_rate(cp: np.ndarray, pct: float) -> float:
     return pct / 100.0 * cp[C_FEED_RATE]
 
 
-@njit(**_OPTIONS)
+@compiled
 def _model_reset(cs: np.ndarray, x: int, nx: int, held: float) -> None:
     for i in range(3):
         cs[x + i] = 0.0
@@ -577,7 +595,7 @@ def _model_reset(cs: np.ndarray, x: int, nx: int, held: float) -> None:
     cs[x + nx - 1] = held
 
 
-@njit(**_OPTIONS)
+@compiled
 def _model_advance(cp: np.ndarray, cs: np.ndarray, x: int, nx: int, phi: int, gamma: int,
                    servo_in: float) -> None:
     """The predictor's model (:func:`..control.predictor.model_matrices`), one step:
@@ -592,7 +610,7 @@ def _model_advance(cp: np.ndarray, cs: np.ndarray, x: int, nx: int, phi: int, ga
         cs[x + i] = total + cp[gamma + i] * servo_in
 
 
-@njit(**_OPTIONS)
+@compiled
 def _rls_restart(cp: np.ndarray, cs: np.ndarray) -> None:
     for i in range(4):
         cs[CS_THETA + i] = cp[C_THETA0 + i]
@@ -601,7 +619,7 @@ def _rls_restart(cp: np.ndarray, cs: np.ndarray) -> None:
     cs[CS_F] = 1.0
 
 
-@njit(**_OPTIONS)
+@compiled
 def _rls_update(cp: np.ndarray, cs: np.ndarray, x0: float, x1: float, x2: float, x3: float,
                 y: float) -> None:
     """Recursive least squares, four parameters (:mod:`..control.rls` states it: Hwang & Chen
@@ -670,7 +688,7 @@ def _rls_update(cp: np.ndarray, cs: np.ndarray, x0: float, x1: float, x2: float,
                 cs[CS_P + 4 * i + j] = cp[C_P0] if i == j else 0.0
 
 
-@njit(**_OPTIONS)
+@compiled
 def controller_reset(cp: np.ndarray, cs: np.ndarray) -> None:
     """Each law's fresh state (a new cut, or state that went non-finite), from the held
     request."""
@@ -709,7 +727,7 @@ def controller_reset(cp: np.ndarray, cs: np.ndarray) -> None:
     # the staircase forgets nothing: its place in the script is no state a bad sample spoils
 
 
-@njit(**_OPTIONS)
+@compiled
 def _smc(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndarray) -> None:
     """Continuous sliding mode control (Park 1998, Eqs. 5-21; :mod:`..control.smc` states the
     law) acting on the force its Smith predictor gives (:mod:`..control.predictor`)."""
@@ -773,7 +791,7 @@ def _smc(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndar
     out[OUT_PCT], out[OUT_ERR], out[OUT_S] = _clip(cp, pct), measured_error, s
 
 
-@njit(**_OPTIONS)
+@compiled
 def _adaptive(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None:
     """The conventional adaptive controller (Masory & Koren 1980; :mod:`..control.adaptive`)."""
     dt = cp[C_PERIOD]
@@ -795,7 +813,7 @@ def _adaptive(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> 
     out[OUT_PCT], out[OUT_ERR], out[OUT_S] = cs[CS_AD_CMD], error, 0.0
 
 
-@njit(**_OPTIONS)
+@compiled
 def _asmc_control(cp: np.ndarray, cs: np.ndarray, y: float, y_ref: float) -> float:
     """Hwang & Chen 1990, Eqs. 11-32 with Remarks 1-2 (:mod:`..control.adaptive_smc`): the
     feed-rate command u [mm/s] from the estimated model; u(k-1) held where the model cannot
@@ -830,7 +848,7 @@ def _asmc_control(cp: np.ndarray, cs: np.ndarray, y: float, y_ref: float) -> flo
     return u0 - (da0 * x0 + da1 * x1) / (d0 * b1 + d1 * b2)
 
 
-@njit(**_OPTIONS)
+@compiled
 def _asmc(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None:
     """Discrete adaptive sliding mode control (Hwang & Chen 1990; :mod:`..control.adaptive_smc`):
     RLS with variable forgetting (Eqs. 33-39), then the control (Eqs. 11-32)."""
@@ -845,7 +863,7 @@ def _asmc(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None
     out[OUT_PCT], out[OUT_ERR], out[OUT_S] = _pct(cp, 60.0 * u), y - y_ref, cs[CS_SLIDING]
 
 
-@njit(**_OPTIONS)
+@compiled
 def _solve4(m: np.ndarray, rhs: np.ndarray, x: np.ndarray) -> bool:
     """turning_force.core.lti.solve for 4 x 4: False where singular."""
     a = np.empty((4, 5))
@@ -875,7 +893,7 @@ def _solve4(m: np.ndarray, rhs: np.ndarray, x: np.ndarray) -> bool:
     return True
 
 
-@njit(**_OPTIONS)
+@compiled
 def pp_design(cp: np.ndarray, a1: float, a2: float, b0: float, b1: float,
               solution: np.ndarray) -> bool:
     """Kim's servo-compensator by pole placement: ``[r1, s0, s1, s2]`` into ``solution`` from
@@ -897,7 +915,7 @@ def pp_design(cp: np.ndarray, a1: float, a2: float, b0: float, b1: float,
     return _solve4(matrix, rhs, solution)
 
 
-@njit(**_OPTIONS)
+@compiled
 def _pole_placement(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None:
     """Kim's adaptive controller (Kim Eqs. 12-24; :mod:`..control.adaptive_pp`): RLS on the
     ARMA model, then the pole-placement servo-compensator (:func:`pp_design`)."""
@@ -922,7 +940,7 @@ def _pole_placement(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarra
     out[OUT_PCT], out[OUT_ERR], out[OUT_S] = u, error, 0.0
 
 
-@njit(**_OPTIONS)
+@compiled
 def _pi(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None:
     """Fixed-gain PI with anti-windup by clamping the integral (:mod:`..control.pi`)."""
     error = force - cp[C_REF]
@@ -932,7 +950,7 @@ def _pi(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None:
     out[OUT_PCT], out[OUT_ERR], out[OUT_S] = _clip(cp, cs[CS_PI_INT] + proportional), error, 0.0
 
 
-@njit(**_OPTIONS)
+@compiled
 def _staircase(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) -> None:
     """The commissioning staircase (:mod:`..control.staircase`)."""
     commands = int(cs[CS_SC_COMMANDS])
@@ -942,7 +960,7 @@ def _staircase(cp: np.ndarray, cs: np.ndarray, force: float, out: np.ndarray) ->
     out[OUT_ERR], out[OUT_S] = force - cp[C_REF], 0.0
 
 
-@njit(**_OPTIONS)
+@compiled
 def _track_reach(cp: np.ndarray, cs: np.ndarray, request: float, error: float) -> float:
     """1.0 while the reference can be reached, else 0.0 (:class:`..control.Controller`)."""
     tolerance = pymin(cp[C_GAP] / 2.0, 5.0)
@@ -965,7 +983,7 @@ def _track_reach(cp: np.ndarray, cs: np.ndarray, request: float, error: float) -
     return 1.0 if cs[CS_PINNED] < cp[C_UNREACH] else 0.0
 
 
-@njit(**_OPTIONS)
+@compiled
 def _state_is_finite(cp: np.ndarray, cs: np.ndarray) -> bool:
     kind = int(cp[C_KIND])
     if kind == ASMC:
@@ -977,7 +995,7 @@ def _state_is_finite(cp: np.ndarray, cs: np.ndarray) -> bool:
     return True
 
 
-@njit(**_OPTIONS)
+@compiled
 def _recover(cp: np.ndarray, cs: np.ndarray, error: float, out: np.ndarray) -> None:
     cs[CS_RESETS] += 1.0
     cs[CS_CARRY] = 0.0
@@ -988,7 +1006,7 @@ def _recover(cp: np.ndarray, cs: np.ndarray, error: float, out: np.ndarray) -> N
     out[OUT_REACH] = 1.0
 
 
-@njit(**_OPTIONS)
+@compiled
 def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force: float,
                       rate: float, out: np.ndarray) -> None:
     """One control period (:class:`..control.Controller` states it): the law, the guard on its
@@ -1044,13 +1062,13 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
 
 # --- the gate (core/pmc.py OverrideGate) ----------------------------------------------------
 
-@njit(**_OPTIONS)
+@compiled
 def _over_limit(gp: np.ndarray, force: float, status: float) -> bool:
     """OverrideGate._over_limit, as a flag."""
     return status == SATURATED or not math.isfinite(force) or force > gp[G_OVERLOAD]
 
 
-@njit(**_OPTIONS)
+@compiled
 def _observe(gp: np.ndarray, gs: np.ndarray, force: float) -> None:
     """ShopFloor.observe where it sets outputs only (kernel.NEUTRAL: no breakage, no learning,
     no stand-down): the cut detector (ShopFloor._engagement) and the overload reaction."""
@@ -1070,7 +1088,7 @@ def _observe(gp: np.ndarray, gs: np.ndarray, force: float) -> None:
         gs[GS_REACTED] = 1.0
 
 
-@njit(**_OPTIONS)
+@compiled
 def gate_on_estimate(gp: np.ndarray, gs: np.ndarray, force: float, status: int) -> None:
     """OverrideGate.on_estimate, where only the override counts (the core loop's trace): the
     shop floor's outputs are not kept up (:func:`gate_observe`)."""
@@ -1081,7 +1099,7 @@ def gate_on_estimate(gp: np.ndarray, gs: np.ndarray, force: float, status: int) 
         gs[GS_HOLD] = 1.0
 
 
-@njit(**_OPTIONS)
+@compiled
 def gate_observe(gp: np.ndarray, gs: np.ndarray, force: float, status: int) -> None:
     """OverrideGate.on_estimate whole: the override's state and the shop floor's outputs (the
     cut detector, the overload reaction)."""
@@ -1090,7 +1108,7 @@ def gate_observe(gp: np.ndarray, gs: np.ndarray, force: float, status: int) -> N
         _observe(gp, gs, force)
 
 
-@njit(**_OPTIONS)
+@compiled
 def gate_arm(gp: np.ndarray, gs: np.ndarray, t: float) -> None:
     """OverrideGate.arm: the reactions cleared (ShopFloor.rearm); the hold stays while the last
     force is over the limit, else clears."""
@@ -1099,7 +1117,7 @@ def gate_arm(gp: np.ndarray, gs: np.ndarray, t: float) -> None:
     gs[GS_HOLD] = 1.0 if _over_limit(gp, gs[GS_LAST_F], gs[GS_LAST_STATUS]) else 0.0
 
 
-@njit(**_OPTIONS)
+@compiled
 def gate_decide(gp: np.ndarray, gs: np.ndarray, levels: np.ndarray, t: float,
                 decision: np.ndarray) -> None:
     """OverrideGate.decide: decision = (applied, reason). The one place the gate's rules
@@ -1126,12 +1144,14 @@ def gate_decide(gp: np.ndarray, gs: np.ndarray, levels: np.ndarray, t: float,
 
 # --- the core loop (core/simulate.py) -------------------------------------------------------
 
-@njit('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
+@entry('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, '
-      'float64, float64[::1], float64[:, ::1])', **_OPTIONS)
-def run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr, ep, es, cp, cs,
-             clevels, gp, gs, glevels, k0, k1, applied, last, trace):
+      'float64, float64[::1], float64[:, ::1])')
+def run_core(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_v: Arr,
+             noise_f: Arr, noise_fr: Arr, ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr,
+             gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int, applied: float, last: Arr,
+             trace: Arr) -> float:
     """Blocks k0 .. k1 - 1 of the core loop (plant -> estimator -> gate.on_estimate ->
     controller -> gate.on_command -> gate.decide), trace rows k0 .. k1 - 1; noise arrays start
     at block k0. ``last`` is the command that stands (pct, sliding, reachable). Returns the
@@ -1166,7 +1186,7 @@ def run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr, ep, es,
     return applied
 
 
-@njit(**_OPTIONS)
+@compiled
 def _chain_row(rows: np.ndarray, k: int, es: np.ndarray, status: int, acted: bool,
                out: np.ndarray, cp: np.ndarray, gp: np.ndarray, gs: np.ndarray,
                decision: np.ndarray) -> None:
@@ -1188,14 +1208,16 @@ def _chain_row(rows: np.ndarray, k: int, es: np.ndarray, status: int, acted: boo
         else 0.0
 
 
-@njit('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
+@entry('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, '
       'float64, float64[::1], float64[:, ::1], float64[::1], float64[:, ::1], float64[:, ::1], '
-      'float64[:, ::1], float64[:, ::1], float64[:, ::1])', **_OPTIONS)
-def run_core_kept(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr, ep, es, cp, cs,
-                  clevels, gp, gs, glevels, k0, k1, applied, last, trace, t0s, u, v, angle,
-                  feed_rate, rows):
+      'float64[:, ::1], float64[:, ::1], float64[:, ::1])')
+def run_core_kept(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_v: Arr,
+                  noise_f: Arr, noise_fr: Arr, ep: Arr, es: Arr, cp: Arr, cs: Arr,
+                  clevels: Arr, gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int,
+                  applied: float, last: Arr, trace: Arr, t0s: Arr, u: Arr, v: Arr, angle: Arr,
+                  feed_rate: Arr, rows: Arr) -> float:
     """:func:`run_core`, keeping every block: its first stamp into t0s[k], its samples into
     row k of u, v, angle and feed_rate, the chain's row (CH_*) into rows[k]."""
     n = int(pp[P_N])
@@ -1229,12 +1251,13 @@ def run_core_kept(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr, ep
     return applied
 
 
-@njit('int64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
+@entry('int64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
       'float64[::1], float64[::1], float64[::1], float64[::1], float64, float64[:, ::1], '
       'float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], int64, '
-      'float64[:, ::1])', **_OPTIONS)
-def replay_blocks(ep, es, cp, cs, clevels, gp, gs, glevels, t0s, dt, u, v, angle, feed,
-                  arm_times, arm_states, change, rows):
+      'float64[:, ::1])')
+def replay_blocks(ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr, gp: Arr, gs: Arr,
+                  glevels: Arr, t0s: Arr, dt: float, u: Arr, v: Arr, angle: Arr, feed: Arr,
+                  arm_times: Arr, arm_states: Arr, change: int, rows: Arr) -> int:
     """Replay (session/replay.py): blocks of recorded currents (n, m) through estimator ->
     gate.on_estimate -> controller -> gate.on_command -> gate.decide, open loop, each decision
     at the block's end; before each block, the gate armed (at the change's time) or disarmed
@@ -1266,31 +1289,32 @@ def replay_blocks(ep, es, cp, cs, clevels, gp, gs, glevels, t0s, dt, u, v, angle
     return change
 
 
-@njit('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64, '
+@entry('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64, '
       'float64[::1], float64[::1], float64[::1], float64[::1], int64, float64[::1], '
-      'float64[::1], float64[::1], float64[::1], float64[:, ::1])', **_OPTIONS)
-def plant_block(pp, ps, times, depths, override_pct, noise_u, noise_v, noise_f, noise_fr, lo,
-                u, v, angle, feed_rate, truth):
+      'float64[::1], float64[::1], float64[::1], float64[:, ::1])')
+def plant_block(pp: Arr, ps: Arr, times: Arr, depths: Arr, override_pct: float, noise_u: Arr,
+                noise_v: Arr, noise_f: Arr, noise_fr: Arr, lo: int, u: Arr, v: Arr, angle: Arr,
+                feed_rate: Arr, truth: Arr) -> float:
     """:func:`plant_step` from Python (:class:`turning_force.core.plant.LathePlant`)."""
     return plant_step(pp, ps, times, depths, override_pct, noise_u, noise_v, noise_f, noise_fr,
                       lo, u, v, angle, feed_rate, truth)
 
 
-@njit('int64(float64[::1], float64[::1], float64, float64, float64[::1], float64[::1], '
-      'float64[::1], float64[::1], float64[::1])', **_OPTIONS)
-def estimate_block(ep, es, t0, dt, u, v, angle, feed, work):
+@entry('int64(float64[::1], float64[::1], float64, float64, float64[::1], float64[::1], '
+      'float64[::1], float64[::1], float64[::1])')
+def estimate_block(ep: Arr, es: Arr, t0: float, dt: float, u: Arr, v: Arr, angle: Arr,
+                   feed: Arr, work: Arr) -> int:
     """:func:`estimator_update` for one block from Python (the nodes, replay)."""
     return estimator_update(ep, es, t0, dt, u, v, angle, feed, work)
 
 
-@njit('void(float64[::1], float64[::1])', **_OPTIONS)
-def controller_start(cp, cs):
+@entry('void(float64[::1], float64[::1])')
+def controller_start(cp: Arr, cs: Arr) -> None:
     """A controller's first state, from the held request (``CS_HELD``) and its parameters."""
     controller_reset(cp, cs)
 
 
-@njit('void(float64[::1], float64[::1], float64[::1], float64, float64, float64[::1])',
-      **_OPTIONS)
-def control_step(cp, cs, levels, force, rate, out):
+@entry('void(float64[::1], float64[::1], float64[::1], float64, float64, float64[::1])')
+def control_step(cp: Arr, cs: Arr, levels: Arr, force: float, rate: float, out: Arr) -> None:
     """:func:`controller_update` from Python (the nodes, replay)."""
     controller_update(cp, cs, levels, force, rate, out)
