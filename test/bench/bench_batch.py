@@ -3,18 +3,17 @@
 Prints, side by side so that the ratios hold on a noisy machine (min / median of several runs):
 
 - replay of Fig. 8's committed reference session (bags/reference/park1998_fig8, 1200 blocks):
-  reading it, then the chain through ``replay_chain`` three ways: the Python reference
-  (``compiled=False``), today's per-block loop (ControlChain with its estimator and controller
-  on the kernel, one call per block: what session/replay.py did before), and the kernel
-  (``jit.replay_blocks``); then ``replay()`` whole (metrics included);
+  reading it, then the chain through ``replay_chain`` two ways: the per-block loop
+  (ControlChain, one call of the compiled estimator, controller and gate per block: what the
+  nodes do) and the compiled loop (``jit.replay_blocks``); then ``replay()`` whole;
 - replay of a synthetic one-hour run (``run_core`` of Fig. 8 with ``duration_s`` 3600:
-  360,000 blocks): the kernel on all of it, the per-block loop and the Python reference on its
-  first minute (6,000 blocks; their hour extrapolated, marked ``~``);
+  360,000 blocks): the compiled loop on all of it, the per-block loop on its first minute
+  (6,000 blocks; its hour extrapolated, marked ``~``);
 - ``run_core`` (every sample, estimate, command and decision kept) beside ``simulate`` on the
   kernel: microseconds per 10 ms period, for Fig. 8 (12 s) and for the hour.
 
 Run: ``.venv/bin/python test/bench/bench_batch.py`` (or ``make bench``). Measures; asserts
-nothing (``test/core/test_batch.py`` holds the kernel to the reference).
+nothing (``test/core/test_batch.py`` holds the compiled loops to the per-block one).
 """
 
 from __future__ import annotations
@@ -118,25 +117,21 @@ def main() -> int:
     print(f'replay of {REFERENCE.relative_to(ROOT)} ({n} blocks)')
     print(HEADER)
     print(row('read_session (whole)', n, read_times))
-    python_times, python = timed(lambda: batch.replay_chain(
-        e, currents, changes, inputs, reference, compiled=False), 3)
-    print(row('replay_chain, Python reference', n, python_times))
     loop_times, loop = timed(lambda: per_block_loop(e, currents, changes, inputs, reference), 3)
     print(row("per-block loop, kernel components (today's)", n, loop_times))
     kernel_times, compiled = timed(lambda: batch.replay_chain(
-        e, currents, changes, inputs, reference, compiled=True), 20)
+        e, currents, changes, inputs, reference), 20)
     print(row('replay_chain, kernel', n, kernel_times))
     replay_times, _ = timed(lambda: replay(session), 5)
     print(row('replay() whole (kernel, metrics)', n, replay_times))
     ratio = statistics.median(loop_times) / statistics.median(kernel_times)
-    print(f'kernel / per-block loop: {ratio:.0f}x; kernel vs reference: '
-          f'{differences(compiled, python)}; '
-          f'vs the loop: {differences(compiled, loop)}\n')
+    print(f'kernel / per-block loop: {ratio:.0f}x; kernel vs the loop: '
+          f'{differences(compiled, loop)}\n')
 
     # --- a synthetic hour -----------------------------------------------------------------
     fig8 = load_experiment(FIG8)
     hour = fig8.with_sets([f'experiment.duration_s={HOUR_S}'])
-    core_times, run = timed(lambda: batch.run_core(hour, compiled=True), 1)
+    core_times, run = timed(lambda: batch.run_core(hour), 1)
     blocks = len(run.currents)
     armed = [(0.0, hour.bridge.armed)]
     print(f'replay of a synthetic hour (run_core of Fig. 8, {blocks} blocks; '
@@ -147,13 +142,9 @@ def main() -> int:
                                run.currents.phase_v_a[:SLICE_BLOCKS],
                                run.currents.rotor_angle_rad[:SLICE_BLOCKS],
                                run.currents.feed_rate_mm_min[:SLICE_BLOCKS])
-    python_times, python = timed(lambda: batch.replay_chain(hour, head, armed,
-                                                            compiled=False), 1)
-    print(row('replay_chain, Python reference (1st min)', SLICE_BLOCKS, python_times, blocks))
     loop_times, _ = timed(lambda: per_block_loop(hour, head, armed, None, None), 1)
     print(row('per-block loop, kernel components (1st min)', SLICE_BLOCKS, loop_times, blocks))
-    kernel_times, compiled = timed(lambda: batch.replay_chain(hour, run.currents, armed,
-                                                              compiled=True), 3)
+    kernel_times, compiled = timed(lambda: batch.replay_chain(hour, run.currents, armed), 3)
     print(row('replay_chain, kernel', blocks, kernel_times))
     ratio = statistics.median(loop_times) / SLICE_BLOCKS * blocks / statistics.median(kernel_times)
     print(f'kernel / per-block loop: {ratio:.0f}x; the hour replayed against its run: '
@@ -167,13 +158,13 @@ def main() -> int:
     print('closed loop on the kernel: run_core (everything kept) beside simulate (its trace)')
     print(HEADER)
     periods = round(fig8.run.duration_s / fig8.run.control_period_s)
-    simulate_times, _ = timed(lambda: simulate(fig8, compiled=True), 20)
+    simulate_times, _ = timed(lambda: simulate(fig8), 20)
     print(row('simulate, Fig. 8 (12 s)', periods, simulate_times))
-    core12_times, _ = timed(lambda: batch.run_core(fig8, compiled=True), 20)
+    core12_times, _ = timed(lambda: batch.run_core(fig8), 20)
     print(row('run_core, Fig. 8 (12 s)', periods, core12_times))
-    hour_sim_times, _ = timed(lambda: simulate(hour, compiled=True), 2)
+    hour_sim_times, _ = timed(lambda: simulate(hour), 2)
     print(row('simulate, an hour', blocks, hour_sim_times))
-    more_core, _ = timed(lambda: batch.run_core(hour, compiled=True), 1)
+    more_core, _ = timed(lambda: batch.run_core(hour), 1)
     print(row('run_core, an hour', blocks, core_times + more_core))
     print(f'run_core / simulate: Fig. 8 '
           f'{statistics.median(core12_times) / statistics.median(simulate_times):.2f}x, an hour '

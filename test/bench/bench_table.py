@@ -3,7 +3,7 @@ path still exists, the ratio, the target, and whether it is met.
 
 Rows (Park 1998 Fig. 8 throughout; min / median of ``--runs`` runs where a row repeats):
 
-1. the core loop's realtime factor: the plain Python reference (``simulate(compiled=False)``)
+1. the core loop's realtime factor: issue 9's Python reference (gone: its measured figure)
    and the compiled kernel;
 2. the lock-step graph's realtime factor (``run_lockstep``): the old path (``fast=False``: a
    ``/clock`` subscription per node, the recorder writing on the executor thread, its clock read
@@ -90,16 +90,15 @@ def met(ok: bool) -> str:
 def core_loop(runs: int) -> None:
     fig8 = load_experiment(FIG8)
     kernel.load()
-    simulate(fig8, compiled=True)   # warm
-    old = times(lambda: simulate(fig8, compiled=False), runs)
-    new = times(lambda: simulate(fig8, compiled=True), runs)
+    simulate(fig8)   # warm
+    new = times(lambda: simulate(fig8), runs)
     sim_s = fig8.run.duration_s
-    rf_old = [sim_s / t for t in old]
     rf_new = [sim_s / t for t in new]
+    # The Python reference is gone (one source, issue 14): its figure is issue 9's measurement.
     add('fig8 core loop (run --core), realtime factor [x] (min/median)',
-        f'{min(rf_old):.0f} / {statistics.median(rf_old):.0f}',
+        "22 / 23 (issue 9's Python reference)",
         f'{min(rf_new):.0f} / {statistics.median(rf_new):.0f}',
-        f'{statistics.median(old) / statistics.median(new):.0f}x faster',
+        f'{statistics.median(rf_new) / 23:.0f}x faster',
         f'>= 1000x: {met(statistics.median(rf_new) >= 1000)}')
 
 
@@ -174,7 +173,8 @@ def old_chain_seconds(bag: Path) -> float:
         session.currents.rotor_angle_rad[:OLD_REPLAY_BLOCKS],
         session.currents.feed_rate_mm_min[:OLD_REPLAY_BLOCKS])
     start = time.perf_counter()
-    batch.replay_chain(session.experiment, first, session.arm_changes, compiled=False)
+    batch._replay_blocks(session.experiment, first.block, len(first), session.arm_changes,
+                         None, None)
     return (time.perf_counter() - start) * n / OLD_REPLAY_BLOCKS
 
 
@@ -208,7 +208,7 @@ def sweeps() -> None:
     points = [[f'{LAMBDA}={2 + 18 * k / 199}', f'{EPSILON}=200.0'] for k in range(200)]
     start = time.perf_counter()
     for sets in points:
-        simulate(fig8.with_sets(sets), compiled=False)
+        simulate(fig8.with_sets(sets))
     serial_point = (time.perf_counter() - start) / 200
     start = time.perf_counter()
     for k in range(3):

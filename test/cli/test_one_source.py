@@ -5,8 +5,6 @@ a time in the kernel's module under ``NUMBA_DISABLE_JIT=1`` (where a compiled ca
 as the Python it is) and the path is run: the probe must be reached, so no second copy of the
 algorithm serves that path. The plant is not on replay's path (it replays recorded currents).
 
-The PMC gate is not in this list yet: the graph's bridge runs its own (``core/pmc.py`` with the
-shop-floor behaviours), the core loop the kernel's, and ``test_kernel.py`` holds the two alike.
 """
 
 import os
@@ -19,7 +17,8 @@ import pytest
 PROBE = Path(__file__).with_name('one_source_probe.py')
 LAWS = ['_smc', '_pi@pi', '_adaptive@adaptive', '_asmc@adaptive_smc',
         '_pole_placement@adaptive_pp', '_staircase@staircase']
-ALGORITHMS = ['plant_step', 'estimator_update', 'controller_update', *LAWS]
+ALGORITHMS = ['plant_step', 'estimator_update', 'controller_update', *LAWS,
+              'gate_on_estimate', 'gate_answer', '_observe', '_judge']
 
 
 @pytest.mark.parametrize('path', ['run', 'run-core', 'replay', 'sweep'])

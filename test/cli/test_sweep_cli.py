@@ -63,7 +63,8 @@ def test_sweep_text_output(capfd, fig8):
                           '2 processes')
     assert 'best by overshoot_n (lower is better):' in out
     assert f"the best again: turning-force run {fig8} --set '{SHORT}' --set '{LAMBDA}=" in out
-    assert len([line for line in out.splitlines() if line.endswith('compiled')]) == 3
+    ranks = [line.split()[0] for line in out.splitlines() if line.startswith('     ')]
+    assert ranks == ['1', '2', '3']
 
 
 def test_sweep_on_a_session(capfd, reference_bag):

@@ -1,10 +1,12 @@
-"""The batch API (core/batch.py): replay_chain and run_core on the kernel against their Python
-reference (ControlChain block by block), field for field; run_core's result against simulate's;
-its currents against the plant's; replay of a closed-loop run's currents against the run.
+"""The batch API (core/batch.py): replay_chain and run_core, the compiled loops, against the same
+chain stepped one block at a time as the nodes step it (ControlChain: the plant, the estimator,
+the controller and the gate each called per block), field for field; run_core's result against
+simulate's; its currents against the plant's; replay of a closed-loop run's currents against
+the run.
 
-Every comparison is to the bit (``assert_array_equal``, NaN equal to NaN): the kernel runs the
-reference's arithmetic in the reference's order, and the issue's 1e-9 is kept for the recorded
-reference session only (recorded through BLAS, test_reference_bag.py)."""
+Every comparison is to the bit (``assert_array_equal``, NaN equal to NaN): both run the same
+compiled functions in the same order, and the issue's 1e-9 is kept for the recorded reference
+session only (recorded through BLAS, test_reference_bag.py)."""
 
 from __future__ import annotations
 
@@ -15,9 +17,10 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_kernel import EXPERIMENTS, FIG8, FILES, IN_PYTHON
+from test_kernel import EXPERIMENTS, FIG8, FILES
 
 from turning_force.commands import robustness
+from turning_force.core import batch
 from turning_force.core.batch import (
     ChainTrace,
     CoreRun,
@@ -28,14 +31,16 @@ from turning_force.core.batch import (
     run_core,
 )
 from turning_force.core.drive import CurrentBlock
-from turning_force.core.errors import ConfigError
+from turning_force.core.errors import NoCutError
 from turning_force.core.estimation import EstimateStatus
 from turning_force.core.experiment import Experiment, load_experiment
+from turning_force.core.loop import ControlChain
+from turning_force.core.metrics import compute_metrics
 from turning_force.core.overrides import get_table
 from turning_force.core.plant import LathePlant
 from turning_force.core.pmc import Reason
 from turning_force.core.shopfloor import InputValues
-from turning_force.core.simulate import simulate
+from turning_force.core.simulate import TRACE_NAMES, SimulationResult, simulate
 
 # Long enough for the engagement and the first depth step of every file (fig8's at 4 s).
 MAX_S = 6.0
@@ -70,9 +75,63 @@ def assert_same_run(got: CoreRun, expected: CoreRun) -> None:
         np.testing.assert_array_equal(got.plant[name], values, err_msg=name)
 
 
+def stepped(e: Experiment) -> CoreRun:
+    """The closed loop one block at a time, as the graph's nodes run it: the plant, then
+    ControlChain (estimator, controller, gate: each a compiled function called per block)."""
+    table = get_table(e.bridge.override_table)
+    chain = ControlChain(e.estimator, e.controller, e.bridge)
+    applied = table.quantise(e.controller.initial_override_pct)
+    plant = LathePlant(e.plant, initial_override_pct=applied)
+    n = round(e.run.duration_s / e.run.control_period_s)
+    m = e.plant.samples_per_block
+    currents = CurrentArrays.empty(n, m, 1.0 / e.plant.sample_rate_hz)
+    trace = ChainTrace._empty(n)
+    rows = np.empty((n, len(TRACE_NAMES)))
+    plant_rows = {name: np.empty(n) for name in ('force_n', 'depth_mm', 'feed_mm_rev',
+                                                  'feed_rate_mm_min', 'override_pct')}
+    command = None
+    for k in range(n):
+        reference_now = chain.controller.settings.reference_force_n
+        block = plant.step(applied)
+        b = block.currents
+        currents.t0_s[k] = b.t0_s
+        currents.phase_u_a[k], currents.phase_v_a[k] = b.phase_u_a, b.phase_v_a
+        currents.rotor_angle_rad[k], currents.feed_rate_mm_min[k] = (b.rotor_angle_rad,
+                                                                     b.feed_rate_mm_min)
+        step = chain.step(b, inputs=block.inputs)
+        trace._put(k, step, reference_now)
+        command = step.command or command
+        pct, sliding, reach = ((applied, 0.0, 1.0) if command is None else
+                               (command.override_pct, command.sliding_variable,
+                                float(command.reachable)))
+        rows[k] = (b.t0_s + len(b) * b.sample_period_s, block.force_n[-1],
+                   step.estimate.force_n, step.estimate.force_rate_n_s,
+                   e.controller.reference_force_n, block.depth_mm[-1], block.feed_mm_rev[-1],
+                   pct, applied, sliding, reach)
+        plant_rows['force_n'][k], plant_rows['depth_mm'][k] = (block.force_n[-1],
+                                                                block.depth_mm[-1])
+        plant_rows['feed_mm_rev'][k] = block.feed_mm_rev[-1]
+        plant_rows['feed_rate_mm_min'][k] = b.feed_rate_mm_min[-1]
+        plant_rows['override_pct'][k] = applied
+        applied = step.decision.applied_pct
+    plant_rows['spindle_speed_rpm'] = np.full(n, e.plant.spindle_speed_rpm)
+    plant_rows['specific_cutting_force_n_mm2'] = np.full(
+        n, e.plant.specific_cutting_force_n_mm2)
+    t = {name: rows[:, i] for i, name in enumerate(TRACE_NAMES)}
+    try:
+        metrics = compute_metrics(t['t_s'], t['force_n'], t['reference_n'], t['depth_mm'],
+                                  t['applied_override_pct'],
+                                  e.plant.depth_profile.change_times_s(), e.metric_settings,
+                                  reachable=t['reference_reachable'] > 0.5)
+    except NoCutError:
+        metrics = {}
+    result = SimulationResult(t, metrics)
+    return CoreRun(result, currents, trace, plant_rows, list(chain.cuts))
+
+
 def assert_simulates(run: CoreRun, e: Experiment) -> None:
     """run_core's result is simulate's: every trace column, every metric."""
-    result = simulate(e, compiled=run.chain.compiled)
+    result = simulate(e)
     for name, values in result.trace.items():
         np.testing.assert_array_equal(run.result.trace[name], values, err_msg=name)
     for name, value in result.metrics.items():
@@ -86,10 +145,17 @@ def plant_inputs(e: Experiment, currents: CurrentArrays) -> InputArrays:
     return InputArrays.collect(lambda k: e.plant.inputs_at(float(ends[k])), len(currents))
 
 
-def replays_itself(run: CoreRun, e: Experiment, compiled: bool | None) -> ChainTrace:
+def replayed_stepwise(e: Experiment, currents: CurrentArrays, changes: list[tuple[float, bool]],
+                      inputs: object = None) -> ChainTrace:
+    """Replay one block at a time through ControlChain (what replay does with blocks no one
+    array holds)."""
+    return batch._replay_blocks(e, currents.block, len(currents), changes, inputs, None)
+
+
+def replays_itself(run: CoreRun, e: Experiment) -> ChainTrace:
     """Open loop over the run's own currents: the same chain, row for row."""
     trace = replay_chain(e, run.currents, [(0.0, e.bridge.armed)],
-                         plant_inputs(e, run.currents), compiled=compiled)
+                         plant_inputs(e, run.currents))
     assert_same_chain(trace, run.chain)
     return trace
 
@@ -97,51 +163,90 @@ def replays_itself(run: CoreRun, e: Experiment, compiled: bool | None) -> ChainT
 @pytest.mark.parametrize('path', FILES, ids=[p.stem for p in FILES])
 def test_every_experiment_file(path):
     e = shortened(load_experiment(path))
-    reference = run_core(e, compiled=False)
-    assert reference.chain.python_reason == 'compiled=False' and not reference.chain.compiled
-    assert_simulates(reference, e)
-    if path.stem in IN_PYTHON:   # the core loop runs it in Python, and says why
-        run = run_core(e)
-        assert run.chain.compiled_from is None
-        assert run.chain.python_reason == IN_PYTHON[path.stem]
-        with pytest.raises(ConfigError, match='program_enable_required'):
-            run_core(e, compiled=True)
-        assert_same_run(run, reference)
-        trace = replays_itself(reference, e, None)
-        assert trace.python_reason == IN_PYTHON[path.stem]
-        return
-    run = run_core(e, compiled=True)
-    assert run.chain.compiled and run.chain.python_reason == ''
-    assert_same_run(run, reference)
+    run = run_core(e)
+    assert_same_run(run, stepped(e))
+    assert run.cuts == stepped(e).cuts
     assert_simulates(run, e)
-    assert replays_itself(run, e, True).compiled
-    replays_itself(run, e, False)
+    replays_itself(run, e)
 
 
-@pytest.mark.parametrize(('scenario', 'controller'), [
-    ('dead time 120 ms', 'smc'), ('servo 2nd order w_n 8', 'adaptive'),
-    ('force fluctuation 5 %', 'pi'),
-])
-def test_robustness_matrix_rows(scenario, controller):
-    row = next(s for s in robustness.MATRIX if s.name == scenario)
-    e = robustness.scenario_experiment(EXPERIMENTS, row, controller).with_sets(
+def _matrix_rows() -> list[object]:
+    """Every (scenario, controller) of the matrix; in ``make test`` each scenario once, the
+    controllers taken in turn (every scenario and every law held to the stepped loop), the other
+    rows in ``make test-all`` (marked slow: about 5 s each)."""
+    laws = sorted(robustness.CONTROLLERS)
+    rows = []
+    for i, scenario in enumerate(robustness.MATRIX):
+        for j, law in enumerate(laws):
+            marks = () if j == i % len(laws) else (pytest.mark.slow,)
+            rows.append(pytest.param(scenario, law, marks=marks, id=f'{law}-{scenario.name}'))
+    return rows
+
+
+@pytest.mark.parametrize(('scenario', 'controller'), _matrix_rows())
+def test_the_robustness_matrix(scenario, controller):
+    e = robustness.scenario_experiment(EXPERIMENTS, scenario, controller).with_sets(
         ['experiment.duration_s=4.5'])
-    run = run_core(e, compiled=True)
-    assert_same_run(run, run_core(e, compiled=False))
-    replays_itself(run, e, True)
+    run = run_core(e)
+    assert_same_run(run, stepped(e))
+    replays_itself(run, e)
 
 
-@pytest.mark.parametrize('python_blocks', [1, 150, 399])
-def test_the_kernel_takes_over_at_any_block(python_blocks):
-    # The gate's cut detector and overload reaction go over with the rest of the state: the
-    # reaction fires (alarm) before the hand-over at 150 and after it at 1.
+FAULTS_AND_SETTINGS = {
+    'sensor fault (NaN blocks, watchdog, restart)': [
+        'lathe_sim.sensor_fault_start_s=2.0', 'lathe_sim.sensor_fault_duration_s=0.3'],
+    'overload hold': ['pmc_bridge.overload_force_n=700.0'],
+    'disarmed': ['pmc_bridge.armed=false'],
+    'saturated current sensor': ['force_estimator.current_range_a=3.0'],
+    'implausible currents': ['force_estimator.current_range_a=1.0'],
+    'low-pass filter': ['force_estimator.force_filter=lowpass',
+                        'force_estimator.lowpass_order=5'],
+    'pole placement': ['force_controller.controller=adaptive_pp',
+                       '/**.override_table=fanuc_8bit'],
+    'adaptive SMC, 1 % force noise': ['force_controller.controller=adaptive_smc',
+                                      'lathe_sim.force_noise_fraction=0.01'],
+    'nonlinear surface, error feedback': ['force_controller.smc_surface=nonlinear',
+                                          'force_controller.quantiser=error_feedback'],
+    'dead time, second-order servo, predictor': [
+        'lathe_sim.pmc_dead_time_s=0.08', 'force_controller.model_dead_time_s=0.08',
+        'lathe_sim.servo_model=second_order', 'force_controller.model_servo_model=second_order',
+        'force_controller.smc_epsilon_n=0.0'],
+    'no predictor, park surface': ['force_controller.smc_predictor=false',
+                                   'force_controller.smc_surface=park1998'],
+    'taper, exponent 0.5, no process lag': [
+        'lathe_sim.depth_interpolation=linear', 'lathe_sim.cutting_exponent=0.5',
+        'lathe_sim.cutting_time_constant_s=0.0'],
+    'exponent 0.95, ideal table': ['lathe_sim.cutting_exponent=0.95',
+                                   '/**.override_table=ideal'],
+    '20 kHz DAQ (200 samples a block: numpy sums them in halves)': [
+        'lathe_sim.sample_rate_hz=20000.0'],
+    'shop-floor settings that leave the override alone (no inputs wired)': [
+        'pmc_bridge.overload_reaction=alarm', 'pmc_bridge.threading_stand_down=false',
+        'pmc_bridge.operator_dial=product', 'pmc_bridge.engage_force_n=300.0',
+        'lathe_sim.dynamometer=true'],
+    'staircase (commissioning)': ['force_controller.controller=staircase',
+                                  'force_controller.staircase_step_s=0.5'],
+    'friction re-zero in air': [
+        'lathe_sim.depth_times_s=[0.0, 2.0, 6.0]', 'lathe_sim.depth_mm=[0.0, 1.0, 2.0]',
+        'lathe_sim.friction_at_min_feed_a=0.81'],
+}
+
+
+@pytest.mark.parametrize('sets', FAULTS_AND_SETTINGS.values(), ids=FAULTS_AND_SETTINGS)
+def test_faults_and_settings(sets):
+    e = load_experiment(FIG8).with_sets([*sets, 'experiment.duration_s=8.0'])
+    run = run_core(e)
+    assert_same_run(run, stepped(e))
+    assert run.cuts == stepped(e).cuts
+
+
+def test_the_gate_s_outputs_on_the_compiled_loop_are_the_stepped_ones():
+    # The gate's cut detector and overload reaction (stop): the same rows either way.
     e = load_experiment(FIG8).with_sets([
         'pmc_bridge.overload_reaction=stop', 'pmc_bridge.reaction_force_fraction=0.25',
         'pmc_bridge.reaction_delay_s=0.5', 'pmc_bridge.engage_force_n=300.0',
         'lathe_sim.force_noise_fraction=0.02', 'experiment.duration_s=4.0'])
-    run = run_core(e, compiled=True, python_blocks=python_blocks)
-    assert run.chain.compiled_from == python_blocks and not run.chain.compiled
-    reference = run_core(e, compiled=False)
+    run, reference = run_core(e), stepped(e)
     assert_same_run(run, reference)
     chain = reference.chain
     assert chain.engaged.any() and not chain.engaged[0]
@@ -154,7 +259,7 @@ def test_the_currents_are_the_plants():
                                          'lathe_sim.force_noise_fraction=0.03',
                                          'lathe_sim.pmc_dead_time_s=0.04',
                                          'experiment.duration_s=3.0'])
-    run = run_core(e, compiled=True)
+    run = run_core(e)
     plant = LathePlant(e.plant, initial_override_pct=run.plant['override_pct'][0])
     for k, applied in enumerate(run.plant['override_pct']):
         block = plant.step(float(applied))
@@ -170,15 +275,13 @@ def test_the_currents_are_the_plants():
 
 def fig8_run(*sets: str) -> tuple[Experiment, CoreRun]:
     e = load_experiment(FIG8).with_sets([*sets, 'experiment.duration_s=10.0'])
-    return e, run_core(e, compiled=True)
+    return e, run_core(e)
 
 
 def assert_replays_alike(e: Experiment, currents: CurrentArrays,
-                         changes: list[tuple[float, bool]], **kwargs: object) -> ChainTrace:
-    compiled = replay_chain(e, currents, changes, compiled=True, **kwargs)   # type: ignore
-    reference = replay_chain(e, currents, changes, compiled=False, **kwargs)  # type: ignore
-    assert compiled.compiled and not reference.compiled
-    assert_same_chain(compiled, reference)
+                         changes: list[tuple[float, bool]], inputs: object = None) -> ChainTrace:
+    compiled = replay_chain(e, currents, changes, inputs)   # type: ignore[arg-type]
+    assert_same_chain(compiled, replayed_stepwise(e, currents, changes, inputs))
     return compiled
 
 
@@ -236,7 +339,7 @@ def test_nan_blocks_the_watchdog_and_a_stamp_jump():
 
 def test_every_control_law_and_filter_replays_alike():
     e = load_experiment(FIG8).with_sets(['experiment.duration_s=6.0'])
-    run = run_core(e.with_sets(['lathe_sim.force_noise_fraction=0.02']), compiled=True)
+    run = run_core(e.with_sets(['lathe_sim.force_noise_fraction=0.02']))
     for sets in (['force_controller.controller=adaptive_smc'],
                  ['force_controller.controller=adaptive_pp', '/**.override_table=fanuc_8bit'],
                  ['force_controller.controller=adaptive'],
@@ -252,25 +355,21 @@ def test_the_machines_inputs():
     n = len(run.currents)
     wired = InputArrays(np.arange(n) % 7 == 0, np.full(n, 1, dtype=np.int8),
                         np.full(n, 0, dtype=np.int8), np.full(n, np.nan))
-    # Inputs that change no decision: the kernel, and the decisions say what they saw.
+    # The decisions say what they saw.
     trace = assert_replays_alike(e, run.currents, [(0.0, True)], inputs=wired)
     assert (trace.program_enable[:7] == 1).all() and (trace.threading == 0).all()
     # A function of the block gives the same.
-    again = replay_chain(e, run.currents, [(0.0, True)], inputs=lambda k: wired(k),
-                         compiled=True)
+    again = replay_chain(e, run.currents, [(0.0, True)], inputs=lambda k: wired(k))
     assert_same_chain(again, trace)
-    # Threading stands the gate down, and a dial lowers it: Python, saying why.
+    # Threading stands the gate down, and a dial lowers it, alike on both paths.
     threading = dataclasses.replace(wired, threading=np.full(n, 1, dtype=np.int8))
     stood_down = e.with_sets(['pmc_bridge.threading_stand_down=true'])
-    with pytest.raises(ConfigError, match='threading'):
-        replay_chain(stood_down, run.currents, inputs=threading, compiled=True)
-    trace = replay_chain(stood_down, run.currents, [(0.0, True)], inputs=threading)
-    assert 'threading' in trace.python_reason and trace.compiled_from is None
+    trace = assert_replays_alike(stood_down, run.currents, [(0.0, True)], inputs=threading)
     assert (trace.reason[1:] == Reason.OPERATOR).all()
     dial = dataclasses.replace(wired, operator_dial_pct=np.full(n, 50.0))
-    trace = replay_chain(e.with_sets(['pmc_bridge.operator_dial=min']), run.currents,
-                         [(0.0, True)], inputs=dial)
-    assert 'dial' in trace.python_reason and trace.applied_pct.max() <= 50.0
+    trace = assert_replays_alike(e.with_sets(['pmc_bridge.operator_dial=min']), run.currents,
+                                 [(0.0, True)], inputs=dial)
+    assert trace.applied_pct.max() <= 50.0
     assert (trace.operator_dial_pct[7:] == 50.0).all()
 
 
@@ -284,17 +383,13 @@ def head(trace: ChainTrace, n: int) -> ChainTrace:
 def test_short_replays_and_lists_of_blocks():
     e, run = fig8_run()
     short = [run.currents.block(k) for k in range(50)]
-    # A list of blocks of one shape goes to the kernel, however short; one of another length
-    # to Python.
+    # A list of blocks of one shape goes through the compiled loop, however short; one of
+    # another length one block at a time.
     compiled = replay_chain(e, short, [(0.0, True)])
-    assert compiled.compiled
     odd = [*short[:-1], CurrentBlock(short[-1].t0_s, 1e-3, short[-1].phase_u_a[:5],
                                      short[-1].phase_v_a[:5], short[-1].rotor_angle_rad[:5],
                                      short[-1].feed_rate_mm_min[:5])]
-    with pytest.raises(ConfigError, match='block 49: 5 samples'):
-        replay_chain(e, odd, compiled=True)
     trace = replay_chain(e, odd, [(0.0, True)])
-    assert trace.python_reason.startswith('the blocks differ')
     assert_same_chain(head(trace, 49), head(compiled, 49))
     assert trace.estimate_status[-1] == EstimateStatus.OK   # a shorter block is estimated
 
@@ -338,10 +433,10 @@ def test_a_friction_re_zero_in_air_and_its_notes():
     e = load_experiment(FIG8).with_sets([
         'lathe_sim.depth_times_s=[0.0, 2.0, 6.0]', 'lathe_sim.depth_mm=[0.0, 1.0, 2.0]',
         'lathe_sim.friction_at_min_feed_a=0.81', 'experiment.duration_s=3.0'])
-    run = run_core(e, compiled=True)
-    assert_same_run(run, run_core(e, compiled=False))
+    run = run_core(e)
+    assert_same_run(run, stepped(e))
     assert any('re-zeroed' in text for text in run.chain.estimate_detail.values())
-    replays_itself(run, e, True)
+    replays_itself(run, e)
 
 
 # The tool in the cut three times: 1, 2 and 3 mm from 0, 3 and 6 s, out of it from 2, 5 and 8 s.
@@ -350,21 +445,19 @@ IN_AND_OUT = ['experiment.duration_s=9.0',
               'lathe_sim.depth_mm=[1.0, 0.0, 2.0, 0.0, 3.0, 0.0]']
 
 
-@pytest.mark.parametrize(('sets', 'python_blocks'), [
-    ([], 0),
-    ([], 250),                                           # the kernel takes over in the 1st cut
-    (['pmc_bridge.overload_force_n=900.0'], 0),         # events past 720 N, then a hold
-    (['pmc_bridge.overload_force_n=900.0', 'lathe_sim.force_noise_fraction=0.05',
-      'pmc_bridge.engage_time_s=0.05'], 0),
-    (['pmc_bridge.overload_force_n=700.0'], 0),
-], ids=['cuts', 'hand-over', 'events', 'noisy-debounce', 'hold'])
-def test_the_cut_log_from_the_rows_is_the_gates(sets, python_blocks):
-    """CoreRun.cuts where the kernel ran (cut_records, from the rows) against the Python gate's
-    own cut log (a run done wholly in Python hands it over): equal, field for field."""
+@pytest.mark.parametrize('sets', [
+    [],
+    ['pmc_bridge.overload_force_n=900.0'],         # events past 720 N, then a hold
+    ['pmc_bridge.overload_force_n=900.0', 'lathe_sim.force_noise_fraction=0.05',
+     'pmc_bridge.engage_time_s=0.05'],
+    ['pmc_bridge.overload_force_n=700.0'],
+], ids=['cuts', 'events', 'noisy-debounce', 'hold'])
+def test_the_cut_log_of_the_compiled_loop_is_the_gates(sets):
+    """CoreRun.cuts (the compiled loop's) against the gate's own cut log stepped block by
+    block: equal, field for field; and what analysis says of them."""
     e = load_experiment(FIG8).with_sets([*IN_AND_OUT, *sets])
-    compiled = run_core(e, compiled=True, python_blocks=python_blocks)
-    reference = run_core(e, compiled=False)
-    assert compiled.chain.compiled_from == python_blocks and reference.chain.compiled_from is None
+    compiled = run_core(e)
+    reference = stepped(e)
     assert compiled.cuts == reference.cuts
     cuts = reference.cuts
     if not sets:
@@ -399,4 +492,4 @@ def test_any_schedule_of_cuts_logs_as_the_gate_does(steps, engage_time_s, overlo
         f'lathe_sim.depth_times_s={times}', f'lathe_sim.depth_mm={[d for _, d in steps]}',
         f'pmc_bridge.engage_time_s={engage_time_s}',
         f'pmc_bridge.overload_force_n={overload_force_n}'])
-    assert run_core(e, compiled=True).cuts == run_core(e, compiled=False).cuts
+    assert run_core(e).cuts == stepped(e).cuts

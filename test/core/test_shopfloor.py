@@ -51,7 +51,7 @@ def engage(gate: OverrideGate, k0: int = 0, blocks: int = 3, force_n: float = 50
     """Blocks of cutting force: the tool is in the cut (two blocks past engage_force_n)."""
     for k in range(k0, k0 + blocks):
         block(gate, k, force_n, request_pct)
-    assert gate.shop.engaged
+    assert gate.engaged
     return k0 + blocks
 
 
@@ -448,7 +448,8 @@ def test_a_learning_cut_that_did_not_run_at_the_programmed_feed_is_not_learned()
         block(gate, k + j, 0.0)
     learned = gate.take_learned()
     assert learned is not None and 'did not run at the programmed feed' in learned.refused
-    assert gate.shop.verdict() is not None          # still learning: the next cut is tried
+    # Still learning: the next cut is tried at the programmed feed.
+    assert gate.decide((k + 3) * PERIOD_S).reason == Reason.TEACH_IN
 
 
 def test_the_teach_file_round_trip_and_the_reference_it_gives(tmp_path):

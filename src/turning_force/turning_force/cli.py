@@ -172,15 +172,15 @@ def _run(args: argparse.Namespace) -> int:
             recorded = record_core(experiment, bag, progress)
         result = recorded.run.result
         metrics = result.metrics
-        out: dict[str, Any] = {'experiment': experiment.run.name, 'kernel': result.kernel,
-                               'session': str(bag), 'metrics': metrics}
+        out: dict[str, Any] = {'experiment': experiment.run.name, 'session': str(bag),
+                               'metrics': metrics}
     elif args.core:
         from turning_force.core.simulate import simulate
 
         with _signals(defer=False):
             result = simulate(experiment)
         metrics = result.metrics
-        out = {'experiment': experiment.run.name, 'kernel': result.kernel, 'metrics': metrics}
+        out = {'experiment': experiment.run.name, 'metrics': metrics}
     else:
         from turning_force.session.reader import read_session, recorded_metrics
         from turning_force.session.report import write_report
@@ -215,8 +215,6 @@ def _run(args: argparse.Namespace) -> int:
         print(f'  session: {out["session"]}\n  figure:  {out["figure"]}')
     elif 'session' in out:
         print(f'  session: {out["session"]} (`turning-force report` draws it)')
-    if 'kernel' in out:
-        print(f'  core loop: {out["kernel"]}')
     _print_metrics('metrics' + (' (core loop)' if args.core else ' (from the session)'),
                    metrics)
     return 0
@@ -423,12 +421,11 @@ def _print_sweep(args: argparse.Namespace, result: Any, best: list[dict[str, Any
     print(f'best by {metric} ({BETTER[metric]} is better):')
     widths = [max(len(a.name), 8) for a in axes]
     print('  rank  ' + '  '.join(f'{a.name:>{w}s}' for a, w in zip(axes, widths, strict=True))
-          + f'  {metric:>{max(len(metric), 10)}s}  kernel')
+          + f'  {metric:>{max(len(metric), 10)}s}')
     for rank, row in enumerate(best, 1):
         cells = '  '.join(f'{_cell(row[a.name]):>{w}s}' for a, w in zip(axes, widths,
                                                                          strict=True))
-        print(f'  {rank:4d}  {cells}  {row[metric]:>{max(len(metric), 10)}.4f}  '
-              f'{row["kernel"]}')
+        print(f'  {rank:4d}  {cells}  {row[metric]:>{max(len(metric), 10)}.4f}')
     if best:
         sets = ' '.join(f"--set '{t}'" for t in result.point_sets(best[0]))
         command = (f'turning-force replay {result.replayed}' if result.replayed

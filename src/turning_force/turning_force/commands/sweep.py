@@ -17,9 +17,8 @@ as text, and the sweep goes on.
 
 Speed: the points go to worker processes ('forkserver': no fork of a process with threads) in
 chunks; each worker loads the compiled kernel once, builds each point's settings from the
-experiment's sections (:meth:`Experiment.with_sets`) and runs it on the kernel wherever the
-kernel covers the settings (:func:`turning_force.core.kernel.why_python`; the ``kernel``
-column says which path ran). Results come back as small dicts. ``test/bench/bench_sweep.py``
+experiment's sections (:meth:`Experiment.with_sets`) and runs it compiled. Results come back as
+small dicts. ``test/bench/bench_sweep.py``
 measures it.
 
 :func:`replay_sessions` replays many sessions with one set of changes (a shop's recordings
@@ -366,16 +365,10 @@ def _session(bag: str, partial: bool, stamp: int) -> Session:
 
 
 def _load_kernel() -> None:
-    """Load the compiled kernel in this process, where it may run at all. A load that fails
-    is not lost: :func:`turning_force.core.kernel.why_python` then gives its reason, which
-    every point's ``kernel`` column shows."""
+    """Load the compiled kernel in this process (once: a worker's first chunk)."""
     from turning_force.core import kernel
 
-    if not kernel.why_python() and kernel.loaded() is None:
-        try:
-            kernel.load()
-        except Exception:   # recorded by the kernel module: see the docstring
-            return
+    kernel.load()
 
 
 def _error_text(exc: BaseException) -> str:
@@ -384,8 +377,8 @@ def _error_text(exc: BaseException) -> str:
 
 
 def _run_chunk(job: _Job, start: int, stop: int) -> list[dict[str, Any]]:
-    """Points ``start`` .. ``stop - 1`` of the grid: per point its metrics, the kernel path and
-    any error (as text: one point's failure is not the sweep's)."""
+    """Points ``start`` .. ``stop - 1`` of the grid: per point its metrics and any error (as
+    text: one point's failure is not the sweep's)."""
     _load_kernel()
     built: dict[Any, Any] = {}
     out = []
@@ -401,16 +394,11 @@ def _run_chunk(job: _Job, start: int, stop: int) -> list[dict[str, Any]]:
 def _simulate_point(experiment: Experiment) -> dict[str, Any]:
     from turning_force.core.simulate import simulate
 
-    # The kernel is loaded (_load_kernel): simulate runs it from the first block wherever it
-    # covers the settings, else the Python reference, and says which.
     result = simulate(experiment)
-    out: dict[str, Any] = {name: result.metrics.get(name, math.nan) for name in METRIC_NAMES}
-    out['kernel'] = result.kernel
-    return out
+    return {name: result.metrics.get(name, math.nan) for name in METRIC_NAMES}
 
 
 def _replay_point(job: _Job, sets: Sequence[str]) -> dict[str, Any]:
-    from turning_force.core import kernel
     from turning_force.session.replay import replay
 
     assert job.bag is not None
@@ -420,12 +408,6 @@ def _replay_point(job: _Job, sets: Sequence[str]) -> dict[str, Any]:
     out: dict[str, Any] = {name: result.rerun.get(name, math.nan) for name in METRIC_NAMES}
     for name in REPLAY_COLUMNS:
         out[name] = getattr(result, name)
-    path = getattr(result, 'kernel', None)
-    if not isinstance(path, str):
-        e = result.experiment
-        reason = kernel.why_python(e.estimator, e.controller, e.bridge)
-        path = f'python ({reason})' if reason else 'compiled'
-    out['kernel'] = path
     return out
 
 
@@ -522,8 +504,7 @@ def _map_dask(dask: Any, func: Callable[..., Any], calls: Sequence[tuple[Any, ..
 class SweepResult:
     """Every point of a sweep: ``table`` has one row per point, in grid order (the last axis
     fastest): the axes' values, every metric (NaN where a point has none: an error, or no
-    cut), replay's comparison columns (open loop), the kernel path and the error ('' if
-    none)."""
+    cut), replay's comparison columns (open loop) and the error ('' if none)."""
 
     axes: tuple[Axis, ...]
     table: list[dict[str, Any]]
@@ -538,8 +519,7 @@ class SweepResult:
     def __post_init__(self) -> None:
         if not self.columns:
             extra = REPLAY_COLUMNS if self.replayed else ()
-            self.columns = (*(a.name for a in self.axes), *METRIC_NAMES, *extra, 'kernel',
-                            'error')
+            self.columns = (*(a.name for a in self.axes), *METRIC_NAMES, *extra, 'error')
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -796,7 +776,6 @@ def sweep(experiment: Experiment | str | Path | None, grid: GridSpec, *,
         row: dict[str, Any] = dict(zip((a.name for a in axes), values, strict=True))
         for name in (*METRIC_NAMES, *extra):
             row[name] = point.get(name, math.nan)
-        row['kernel'] = point.get('kernel', '')
         row['error'] = point.get('error', '')
         table.append(row)
     return SweepResult(tuple(axes), table, metric, base.run.name, tuple(sets),

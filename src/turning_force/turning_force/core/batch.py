@@ -8,18 +8,17 @@ decision and what ``FeedOverride`` carries of it. :func:`replay_chain` is the lo
 made at the end of its block); :func:`run_core` is :func:`turning_force.core.simulate.simulate`
 keeping every sample, estimate, command and decision besides its trace.
 
-Both run on the compiled kernel (:mod:`turning_force.core.kernel`) where it covers the settings
-(and, in replay, the machine's inputs: a threading stand-down or an operator's dial that would
-change a decision sends the run to Python), else on the plain Python reference
-(:class:`turning_force.core.loop.ControlChain` block by block), which gives the same numbers
-bit for bit. ``ChainTrace.python_reason`` says why a run was not compiled.
+Both run compiled (``replay_blocks`` and ``run_core_kept`` of
+:mod:`turning_force.core.kernel.jit`): the same estimator, controller and gate the nodes run.
+Blocks of differing lengths or sample periods (no one array holds them) go through
+:class:`turning_force.core.loop.ControlChain` one block at a time: the same functions again.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -27,15 +26,12 @@ import numpy.typing as npt
 
 from turning_force.core import kernel
 from turning_force.core.drive import CurrentBlock
-from turning_force.core.errors import ConfigError
-from turning_force.core.estimation import EstimateStatus, EstimatorSettings
+from turning_force.core.estimation import EstimatorSettings
 from turning_force.core.experiment import Experiment
 from turning_force.core.loop import ChainStep, ControlChain
 from turning_force.core.overrides import OverrideTable, get_table
-from turning_force.core.plant import PlantBlock
-from turning_force.core.pmc import BridgeSettings, Reason
-from turning_force.core.shopfloor import EVENT_RESET_FRACTION, CutRecord, InputValues
-from turning_force.core.simulate import SimulationResult, run_loop
+from turning_force.core.shopfloor import CutRecord, InputValues
+from turning_force.core.simulate import CoreArrays, SimulationResult, run_loop
 
 __all__ = ['ChainTrace', 'CoreRun', 'CurrentArrays', 'InputArrays', 'cut_records', 'replay_chain',
            'run_core']
@@ -207,9 +203,6 @@ class ChainTrace:
     tracking_error_n: FloatArray               # FeedCommand's F - F_ref; NaN where silent
     # ForceEstimate.detail where it is not empty (why a block was refused, a note), by block
     estimate_detail: dict[int, str] = field(default_factory=dict)
-    compiled: bool = False                     # whether the kernel ran it (all of it)
-    python_reason: str = ''                    # why not ('' where it did)
-    compiled_from: int | None = None           # the first block the kernel ran; None: none
 
     def __len__(self) -> int:
         return int(self.applied_pct.size)
@@ -256,10 +249,6 @@ class ChainTrace:
         self.operator_dial_pct[k] = math.nan if dial is None else dial
         self.engaged[k], self.alarm[k], self.stop_request[k] = d.engaged, d.alarm, d.stop_request
 
-    def _with_path(self, compiled_from: int | None, reason: str) -> ChainTrace:
-        return replace(self, compiled=compiled_from == 0, python_reason=reason,
-                       compiled_from=compiled_from)
-
 
 @dataclass(frozen=True)
 class CoreRun:
@@ -276,73 +265,16 @@ class CoreRun:
     cuts: list[CutRecord] = field(default_factory=list)
 
 
-def cut_records(chain: ChainTrace, currents: CurrentArrays,
-                bridge: BridgeSettings) -> list[CutRecord]:
-    """The cuts that ended in a closed-loop run, as the gate's cut log records them
-    (:class:`turning_force.core.shopfloor.CutLog`: what the bridge publishes on ``pmc/cuts``),
-    from the run's rows: the engagement the gate decided (``chain.engaged``), the estimates it
-    judged, the overrides it applied and the commands' reachability. The cut still open at the
-    end is not among them (the bridge publishes it when it is deactivated, after a session's
-    recording has ended).
-
-    For runs the gate armed at most once, at their start (``run_core``'s): an overload hold
-    then starts exactly where the decisions' reason turns to ``OVERLOAD_HOLD``. The kernel
-    keeps no cut log; this gives the Python gate's records, number for number (``fsum`` where
-    the log sums), for the shop-floor settings the kernel runs (:data:`kernel.NEUTRAL`: no
-    breakage detector, no teach-in).
-    """
-    n = len(chain)
-    if n == 0:
-        return []
-    period_s = bridge.control_period_s
-    debounce = bridge.debounce_blocks(period_s)
-    status = chain.estimate_status
-    force = chain.estimated_force_n
-    # The blocks whose estimate the gate judged (ShopFloor.observe): valid and finite.
-    judged = ((status != EstimateStatus.INVALID_INPUT) & (status != EstimateStatus.STALE)
-              & np.isfinite(force))
-    # Overload events (ShopFloor.observe): a judged force above the reaction's limit while not
-    # in an event, the event ending below EVENT_RESET_FRACTION of it; or a hold started.
-    limit = bridge.reaction_force_fraction * bridge.overload_force_n
-    above = judged & (force > limit)
-    below = judged & (force < EVENT_RESET_FRACTION * limit)
-    marks = np.flatnonzero(above | below)
-    last_mark = np.full(n, -1)
-    last_mark[marks] = marks
-    last_mark = np.maximum.accumulate(last_mark)
-    previous = np.concatenate(([-1], last_mark[:-1]))
-    in_event_before = (previous >= 0) & above[np.maximum(previous, 0)]
-    holding = chain.reason == Reason.OVERLOAD_HOLD
-    hold_started = holding & ~np.concatenate(([False], holding[:-1]))
-    event = (above & ~in_event_before) | (hold_started & judged)
-    # What each block's cut-log entry holds: the judged force, the override applied during it
-    # (the previous answer; 100 % before the first), the command's flag where one answered.
-    applied = np.concatenate(([100.0], chain.applied_pct[:-1]))
-    commanded = np.isfinite(chain.requested_override_pct)
-    t_s = currents.t_end_s
-    engaged = chain.engaged.astype(np.int8)
-    edges = np.diff(np.concatenate(([0], engaged)))
-    records: list[CutRecord] = []
-    for start, end in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=False):
-        # CutLog.start: the cut began debounce - 1 blocks before the one that engaged;
-        # CutLog.end: the last debounce - 1 blocks before the one that took the tool out were
-        # already out of it.
-        first, last = int(start) - (debounce - 1), int(end) - debounce
-        if last < first:
-            continue
-        k = slice(max(first, 0), last + 1)
-        forces = force[k][judged[k]].tolist()
-        flags = chain.reference_reachable[k][commanded[k]].tolist()
-        records.append(CutRecord(
-            index=len(records) + 1, tool=bridge.tool,
-            start_s=float(t_s[k.start]) - period_s, end_s=float(t_s[last]),
-            programmed_feed_s=math.fsum(p / 100.0 * period_s for p in applied[k].tolist()),
-            max_force_n=max(forces) if forces else math.nan,
-            mean_force_n=math.fsum(forces) / len(forces) if forces else math.nan,
-            min_override_pct=float(applied[k].min()),
-            overload_events=int(event[k].sum()), breakage=False,
-            reachable_fraction=sum(flags) / len(flags) if flags else math.nan))
-    return records
+def cut_records(rows: FloatArray, tool: str) -> list[CutRecord]:
+    """The gate's cut records (``CUT_*`` rows of the compiled gate) as :class:`CutRecord`."""
+    jit = kernel.load()
+    return [CutRecord(
+        index=int(r[jit.CUT_INDEX]), tool=tool, start_s=float(r[jit.CUT_START]),
+        end_s=float(r[jit.CUT_END]), programmed_feed_s=float(r[jit.CUT_FEED_S]),
+        max_force_n=float(r[jit.CUT_MAXF]), mean_force_n=float(r[jit.CUT_MEANF]),
+        min_override_pct=float(r[jit.CUT_MINO]), overload_events=int(r[jit.CUT_EVENTS]),
+        breakage=bool(r[jit.CUT_BREAK]), reachable_fraction=float(r[jit.CUT_REACH]),
+        learned=bool(r[jit.CUT_LEARNED]), complete=bool(r[jit.CUT_COMPLETE])) for r in rows]
 
 
 # --- replay ---------------------------------------------------------------------------------
@@ -351,7 +283,6 @@ def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[Curr
                  arm_changes: Sequence[tuple[float, bool]] = (),
                  inputs: Callable[[int], InputValues | None] | None = None,
                  reference_force_n: float | None = None,
-                 compiled: bool | None = None,
                  progress: Callable[[int, int], None] | None = None) -> ChainTrace:
     """The control chain (estimator, controller, gate) open loop over recorded currents:
     exactly the loop of :func:`turning_force.session.replay.replay`.
@@ -361,19 +292,10 @@ def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[Curr
     the block's end. ``inputs(k)``: the machine's inputs the decision answering block ``k``
     saw (None: the last given stand); an :class:`InputArrays` goes to the kernel whole.
     ``reference_force_n``: the reference to start from (:class:`ControlChain`'s).
-
-    ``compiled``: None, the kernel where it covers the settings and the inputs, however short
-    the replay (the Python path would load it too, for its estimator and controller); True,
-    the kernel (a :class:`ConfigError` naming what it does not run); False, the Python
-    reference throughout.
-    ``currents`` may also be a list of blocks, for blocks of differing lengths or sample
-    periods (the kernel needs one of each): those run in Python. ``progress(done, n)`` is
-    called as blocks are done (every block in Python, every ``REPLAY_CHUNK_BLOCKS`` compiled).
+    ``currents`` may also be a list of blocks; blocks of differing lengths or sample periods
+    go one at a time. ``progress(done, n)`` is called as blocks are done.
     """
-    if compiled is None and kernel.forced():
-        compiled = True
     arrays: CurrentArrays | None = None
-    reason = ''
     blocks: Callable[[int], CurrentBlock]
     if isinstance(currents, CurrentArrays):
         arrays, blocks = currents, currents.block
@@ -381,51 +303,40 @@ def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[Curr
         blocks = currents.__getitem__
         try:
             arrays = CurrentArrays.from_blocks(currents)
-        except ValueError as exc:
-            reason = f'the blocks differ: {exc}'
+        except ValueError:
+            arrays = None
     n = len(currents)
-    seen: InputArrays | None = None
-    if compiled is False:
-        reason = 'compiled=False'
-    if not reason:
-        reason = kernel.why_python(experiment.estimator, experiment.controller,
-                                   experiment.bridge)
-    if not reason and inputs is not None:
-        seen = inputs if isinstance(inputs, InputArrays) else InputArrays.collect(inputs, n)
-        reason = _inputs_reason(experiment, seen)
-    if compiled and reason:
-        raise ConfigError(f'{experiment.run.name}: compiled replay: {reason}')
-    if reason or arrays is None:
-        trace = _replay_python(experiment, blocks, n, arm_changes, inputs, reference_force_n,
-                               progress)
-        return trace._with_path(None, reason)
+    if arrays is None:
+        return _replay_blocks(experiment, blocks, n, arm_changes, inputs, reference_force_n,
+                              progress)
+    seen = (None if inputs is None else
+            inputs if isinstance(inputs, InputArrays) else InputArrays.collect(inputs, n))
     chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
                          reference_force_n=reference_force_n)
-    trace = _replay_compiled(chain, arrays, arm_changes, progress)
+    trace = _replay_compiled(chain, arrays, arm_changes, seen, progress)
     if seen is not None:
         trace.program_enable[:], trace.threading[:], trace.operator_dial_pct[:] = seen.seen()
-    return trace._with_path(0, '')
+    return trace
 
 
-def _inputs_reason(experiment: Experiment, inputs: InputArrays) -> str:
-    """Why the machine's inputs need the Python gate ('' where they cannot change a decision
-    with these settings: the kernel's gate knows no stand-down and no dial)."""
-    bridge = experiment.bridge
-    _, threading, dial = inputs.seen()   # the program enable acts only where Python runs
-    if bridge.threading_stand_down and np.any(threading == 1):
-        return 'the threading input stands the gate down (threading_stand_down)'
-    if bridge.operator_dial != 'ignore' and np.any(np.isfinite(dial)):
-        return f"the operator's dial is read (operator_dial = {bridge.operator_dial!r})"
-    return ''
+def _inputs_matrix(seen: InputArrays | None, n: int) -> FloatArray:
+    """The inputs each decision saw as the kernel takes them: (n, 3) program enable,
+    threading (1 set, 0 clear), the operator's dial; NaN where not wired or not given yet."""
+    out = np.full((n, 3), np.nan)
+    if seen is not None:
+        enable, threading, dial = seen.seen()
+        out[:, 0] = np.where(enable < 0, np.nan, enable)
+        out[:, 1] = np.where(threading < 0, np.nan, threading)
+        out[:, 2] = dial
+    return out
 
 
-def _replay_python(experiment: Experiment, blocks: Callable[[int], CurrentBlock], n: int,
+def _replay_blocks(experiment: Experiment, blocks: Callable[[int], CurrentBlock], n: int,
                    arm_changes: Sequence[tuple[float, bool]],
                    inputs: Callable[[int], InputValues | None] | None,
                    reference_force_n: float | None,
                    progress: Callable[[int, int], None] | None = None) -> ChainTrace:
-    """:class:`ControlChain` block by block (the gate the bridge's, with the shop-floor
-    behaviours)."""
+    """:class:`ControlChain` block by block, for blocks no one array holds."""
     chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
                          reference_force_n=reference_force_n)
     trace = ChainTrace._empty(n)
@@ -450,9 +361,9 @@ def _replay_python(experiment: Experiment, blocks: Callable[[int], CurrentBlock]
 
 
 def _replay_compiled(chain: ControlChain, currents: CurrentArrays,
-                     arm_changes: Sequence[tuple[float, bool]],
+                     arm_changes: Sequence[tuple[float, bool]], seen: InputArrays | None,
                      progress: Callable[[int, int], None] | None = None) -> ChainTrace:
-    """The kernel's replay, from the (fresh) Python chain's state."""
+    """The compiled replay, from the (fresh) chain's state."""
     jit = kernel.load()
     ep, es, cp, cs, clevels, gp, gs, glevels = chain.arrays(currents.sample_period_s)
     n = len(currents)
@@ -464,6 +375,8 @@ def _replay_compiled(chain: ControlChain, currents: CurrentArrays,
     armed = np.array([float(a) for _, a in arm_changes], dtype=np.float64)
     t0, u, v = _c(currents.t0_s), _c(currents.phase_u_a), _c(currents.phase_v_a)
     angle, feed = _c(currents.rotor_angle_rad), _c(currents.feed_rate_mm_min)
+    inputs = _inputs_matrix(seen, n)
+    cuts, ncuts = np.zeros((n // 2 + 1, jit.CUT_FIELDS)), np.zeros(1)
     change = 0
     for start in range(0, n, REPLAY_CHUNK_BLOCKS):
         end = min(start + REPLAY_CHUNK_BLOCKS, n)
@@ -471,7 +384,7 @@ def _replay_compiled(chain: ControlChain, currents: CurrentArrays,
         change = jit.replay_blocks(ep, es, cp, cs, clevels, gp, gs, glevels, t0[start:end],
                                    float(currents.sample_period_s), u[start:end], v[start:end],
                                    angle[start:end], feed[start:end], times, armed, change,
-                                   chunk)
+                                   chunk, inputs[start:end], cuts, ncuts)
         _rows_into(jit, chunk, trace, start, chain.gate.table, chain.estimator.settings,
                    currents)
         if progress is not None:
@@ -544,75 +457,36 @@ def pmc_codes(table: OverrideTable, applied_pct: FloatArray) -> npt.NDArray[np.i
 
 # --- the closed loop ------------------------------------------------------------------------
 
-class _Keeper:
-    """Keeps every block of a core run (the :class:`turning_force.core.simulate.Keeper`)."""
-
-    def __init__(self, experiment: Experiment) -> None:
-        self.experiment = experiment
-        plant = experiment.plant
-        self.n = round(experiment.run.duration_s / experiment.run.control_period_s)
-        self.m = plant.samples_per_block
-        self.currents = CurrentArrays.empty(self.n, self.m, 1.0 / plant.sample_rate_hz)
-        self.chain = ChainTrace._empty(self.n)
-        self.rows: FloatArray | None = None
-        self.table = get_table(experiment.bridge.override_table)
-        self.python_cuts: list[CutRecord] | None = None   # the gate's, where Python ran it all
-
-    def python_block(self, k: int, block: PlantBlock, step: ChainStep,
-                     reference_n: float) -> None:
-        c, b = self.currents, block.currents
-        if k == 0 and (len(b) != self.m or b.sample_period_s != c.sample_period_s):
-            raise AssertionError(f'plant blocks of {len(b)} at {b.sample_period_s!r} s, '
-                                 f'not {self.m} at {c.sample_period_s!r} s')
-        c.t0_s[k] = b.t0_s
-        c.phase_u_a[k], c.phase_v_a[k] = b.phase_u_a, b.phase_v_a
-        c.rotor_angle_rad[k], c.feed_rate_mm_min[k] = b.rotor_angle_rad, b.feed_rate_mm_min
-        self.chain._put(k, step, reference_n)
-
-    def kernel_arrays(self) -> tuple[FloatArray, ...]:
-        jit = kernel.load()
-        if self.rows is None:
-            self.rows = np.zeros((self.n, jit.CHAIN_COLUMNS))
-        c = self.currents
-        return (c.t0_s, c.phase_u_a, c.phase_v_a, c.rotor_angle_rad, c.feed_rate_mm_min,
-                self.rows)
-
-    def python_done(self, chain: ControlChain, blocks: int) -> None:
-        self.python_cuts = list(chain.cuts) if blocks == self.n else None
-
-    def kernel_done(self, first: int) -> None:
-        assert self.rows is not None
-        _rows_into(kernel.load(), self.rows[first:], self.chain, first, self.table,
-                   self.experiment.estimator, self.currents)
-        # The simulated machine wires no inputs where the kernel runs (kernel.NEUTRAL).
-        self.chain.program_enable[first:] = -1
-        self.chain.threading[first:] = -1
-        self.chain.operator_dial_pct[first:] = np.nan
-
-
-def run_core(experiment: Experiment, compiled: bool | None = None,
-             python_blocks: int = 0) -> CoreRun:
+def run_core(experiment: Experiment) -> CoreRun:
     """:func:`turning_force.core.simulate.simulate`, keeping what a session records: every DAQ
     sample the plant produced, the chain's estimate, command and decision for each block, and
-    the plant's state at each block's end. ``compiled`` and ``python_blocks`` as simulate's;
-    ``result`` is what simulate gives, bit for bit (its ``realtime_factor`` aside)."""
-    keeper = _Keeper(experiment)
-    result = run_loop(experiment, compiled, python_blocks, keeper)
-    chain = keeper.chain._with_path(result.compiled_from, result.python_reason)
+    the plant's state at each block's end; ``result`` is what simulate gives, bit for bit (its
+    ``realtime_factor`` aside)."""
+    jit = kernel.load()
+    plant_settings = experiment.plant
+    n = round(experiment.run.duration_s / experiment.run.control_period_s)
+    m = plant_settings.samples_per_block
+    currents = CurrentArrays.empty(n, m, 1.0 / plant_settings.sample_rate_hz)
+    rows = np.zeros((n, jit.CHAIN_COLUMNS))
+    kept = CoreArrays(currents.t0_s, currents.phase_u_a, currents.phase_v_a,
+                      currents.rotor_angle_rad, currents.feed_rate_mm_min, rows)
+    result = run_loop(experiment, kept)
+    chain = ChainTrace._empty(n)
+    table = get_table(experiment.bridge.override_table)
+    _rows_into(jit, rows, chain, 0, table, experiment.estimator, currents)
+    seen = plant_settings.inputs_array(currents.t_end_s)
+    chain.program_enable[:] = np.where(np.isnan(seen[:, 0]), -1, seen[:, 0])
+    chain.threading[:] = np.where(np.isnan(seen[:, 1]), -1, seen[:, 1])
+    chain.operator_dial_pct[:] = seen[:, 2]
     t = result.trace
-    n = keeper.n
     plant = {
         'force_n': t['force_n'],
         'depth_mm': t['depth_mm'],
         'feed_mm_rev': t['feed_mm_rev'],
-        'feed_rate_mm_min': keeper.currents.feed_rate_mm_min[:, -1].copy() if n
-        else np.empty(0),
+        'feed_rate_mm_min': currents.feed_rate_mm_min[:, -1].copy() if n else np.empty(0),
         'override_pct': t['applied_override_pct'],
-        'spindle_speed_rpm': np.full(n, experiment.plant.spindle_speed_rpm),
-        'specific_cutting_force_n_mm2': np.full(n, experiment.plant.specific_cutting_force_n_mm2),
+        'spindle_speed_rpm': np.full(n, plant_settings.spindle_speed_rpm),
+        'specific_cutting_force_n_mm2': np.full(n, plant_settings.specific_cutting_force_n_mm2),
     }
-    cuts = keeper.python_cuts
-    if cuts is None:
-        cuts = cut_records(chain, keeper.currents, experiment.bridge)
-    return CoreRun(result, keeper.currents, chain, plant, cuts)
-
+    cuts = cut_records(result.cut_rows, experiment.bridge.tool)
+    return CoreRun(result, currents, chain, plant, cuts)

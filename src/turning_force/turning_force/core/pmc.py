@@ -35,6 +35,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
 import numpy.typing as npt
@@ -45,13 +46,11 @@ from turning_force.core.overrides import OverrideTable, get_table
 from turning_force.core.settings import setting
 from turning_force.core.shopfloor import (
     NO_INPUTS,
-    SHAPED,
     CutRecord,
     InputValues,
     Learned,
-    ShopFloor,
     ShopFloorSettings,
-    Verdict,
+    TaughtTool,
 )
 
 __all__ = ['BridgeSettings', 'Decision', 'OverrideGate', 'Reason']
@@ -142,83 +141,90 @@ class Decision:
 
 
 class OverrideGate:
-    """Decides the override written to the PMC from commands, force estimates and time."""
+    """Decides the override written to the PMC from commands, force estimates and time.
+
+    Its rules, and the shop floor's behaviours after them, are written once, compiled
+    (``gate_*`` in :mod:`turning_force.core.kernel.jit`): this class holds their parameters and
+    state, puts their codes into words, and turns a finished cut into a :class:`CutRecord`
+    and a learning cut into a :class:`Learned` (the teach-in file stays the bridge's)."""
 
     def __init__(self, settings: BridgeSettings, t_s: float | None = None) -> None:
+        jit = kernel.load()
         self.settings = settings
         self.table: OverrideTable = get_table(settings.override_table)
-        self.armed = False
-        self.started = False
-        self._requested = math.nan
-        self._command_t_s = -math.inf
-        self._armed_t_s = -math.inf
-        self._overload = ''
-        self._last_force_n = 0.0
-        self._last_status = EstimateStatus.OK
-        self._reachable: bool | None = None
-        self.shop = ShopFloor(settings, settings.overload_force_n, settings.control_period_s)
+        self._params = _gate_params(jit, settings, self.table)
+        self._state = _gate_state(jit, settings, self._params)
+        self._levels = np.array(self.table.levels_pct, dtype=np.float64)
+        self._dec = np.zeros(jit.DEC_FIELDS)
+        self._cut = np.zeros(jit.CUT_FIELDS)
+        self._started = np.zeros(1)
+        self.inputs = NO_INPUTS
+        self._cuts: list[CutRecord] = []
+        self._learned: Learned | None = None
         if t_s is not None:
             self.start(t_s)
+
+    @property
+    def armed(self) -> bool:
+        return bool(self._state[kernel.load().GS_ARMED])
+
+    @property
+    def started(self) -> bool:
+        return bool(self._state[kernel.load().GS_STARTED])
+
+    @property
+    def engaged(self) -> bool:
+        """Whether the cut detector has the tool in the cut."""
+        return bool(self._state[kernel.load().GS_ENGAGED])
 
     def start(self, t_s: float) -> None:
         """Begin at ``t_s`` (armed if the settings say so). A node starts its gate at its first
         callback, when its clock runs: in a lock-step run sim time only starts then."""
-        self.started = True
-        if self.settings.armed:
-            self.arm(t_s)
+        kernel.load().gate_control(self._params, self._state, float(t_s), 1, self._cut)
+
+    def restart(self) -> None:
+        """Not started: the next :meth:`start` begins again (a lifecycle node activated anew)."""
+        self._state[kernel.load().GS_STARTED] = 0.0
 
     def reconfigure(self, settings: BridgeSettings, t_s: float) -> None:
         """New dynamic settings; arming through the settings clears an overload hold."""
+        jit = kernel.load()
         was_armed = self.settings.armed
         self.settings = settings   # first: re-arming judges the force by the new limit
-        self.shop.overload_force_n = settings.overload_force_n
+        self._params = _gate_params(jit, settings, self.table)
         if settings.armed and not was_armed:
             self.arm(t_s)
         elif not settings.armed:
-            self.armed = False
+            self.disarm()
 
     def arm(self, t_s: float) -> str:
         """Arm at ``t_s``; arming clears an overload hold, unless the last force estimate is
         still over the limit. Returns why the hold stays, or ''."""
-        self.armed = True
-        self._armed_t_s = t_s
-        self.shop.rearm()
-        still = self._over_limit(self._last_force_n, self._last_status)
-        if still and self._overload:
-            self._overload = f'{still}; re-armed while still over the limit'
-        elif still:
-            self._overload = still
-        else:
-            self._overload = ''
-        return self._overload
+        kernel.load().gate_control(self._params, self._state, float(t_s), 0, self._cut)
+        return self._hold_text()
 
     def disarm(self) -> None:
-        self.armed = False
+        self._state[kernel.load().GS_ARMED] = 0.0
 
     @property
     def holding(self) -> bool:
         """Whether an overload hold is in force."""
-        return bool(self._overload)
+        return bool(self._state[kernel.load().GS_HOLD])
 
     def on_inputs(self, inputs: InputValues) -> None:
         """The machine's inputs as last read (program enable, threading, operator dial)."""
-        self.shop.inputs = inputs
+        jit = kernel.load()
+        self.inputs = inputs
+        jit.gate_inputs_from_python(self._state, _flag(inputs.program_enable),
+                                    _flag(inputs.threading),
+                                    math.nan if inputs.operator_dial_pct is None
+                                    else float(inputs.operator_dial_pct))
 
     def on_command(self, requested_pct: float, t_s: float, reachable: bool | None = None) -> None:
         """The controller's request; ``reachable``, its flag, goes to the cut log."""
-        self._requested = requested_pct
-        self._command_t_s = t_s
-        self._reachable = reachable
-
-    def _over_limit(self, force_n: float, status: EstimateStatus) -> str:
-        limit = self.settings.overload_force_n
-        if status == EstimateStatus.SATURATED:
-            return f'current sensor saturated (force {force_n:.0f} N or more)'
-        if not math.isfinite(force_n):
-            return f'force estimate {force_n!r} N is not finite'
-        if force_n > limit:
-            return f'force {force_n:.0f} N above overload_force_n {limit:g} N'
-        return ''
+        jit = kernel.load()
+        jit.gate_command_from_python(self._state, float(requested_pct), float(t_s),
+                                     -1.0 if reachable is None else float(reachable))
 
     def on_estimate(self, force_n: float, status: EstimateStatus = EstimateStatus.OK) -> bool:
         """Take a force estimate; True when it has just started an overload hold.
@@ -226,118 +232,216 @@ class OverrideGate:
         A saturated or non-finite force counts as over the limit. An invalid or stale estimate
         (it repeats the last good force) says nothing new and is not judged.
         """
-        if status in (EstimateStatus.INVALID_INPUT, EstimateStatus.STALE):
-            return False
-        self._last_force_n, self._last_status = force_n, status
-        over = self._over_limit(force_n, status)
-        started = bool(over and not self._overload)
-        if started:
-            self._overload = over
-        if math.isfinite(force_n):
-            self.shop.observe(force_n, self.armed, started)
-        return started
+        kernel.load().gate_block(self._params, self._state, float(force_n), float(int(status)),
+                                 self._cut, self._started)
+        self._collect()
+        return bool(self._started[0])
 
     def decide(self, t_s: float) -> Decision:
         """The override for now; the per-block state stays as it is."""
-        return self._decision(*self._judge(t_s)[:3])
+        return self._step(t_s, 0)
 
     def answer(self, t_s: float) -> Decision:
         """The override answering the block that ends at ``t_s``, the PMC's from the next block
         on; moves the per-block state on (rise limit, cut log, teach-in)."""
-        pct, reason, detail, verdict = self._judge(t_s)
-        decision = self._decision(pct, reason, detail)
-        self.shop.commit(t_s, decision.applied_pct, verdict, self._reachable)
-        self._reachable = None
-        return decision
+        return self._step(t_s, 1)
 
     def take_cuts(self) -> list[CutRecord]:
         """Cuts that ended since the last call (the cut log)."""
-        return self.shop.take_cuts()
+        cuts, self._cuts = self._cuts, []
+        return cuts
 
     def take_learned(self) -> Learned | None:
         """What a learning cut has just taught, once."""
-        return self.shop.take_learned()
+        learned, self._learned = self._learned, None
+        return learned
 
     def close(self) -> CutRecord | None:
         """The session ends: the cut still open, if any, marked incomplete."""
-        return self.shop.close()
-
-    def _judge(self, t_s: float) -> tuple[float, Reason, str, Verdict | None]:
-        """The override (before quantisation), its reason and why, and the shop-floor verdict
-        when the request went through (the rise limit's base)."""
-        s = self.settings
-        requested = self._requested
-        if self._overload:
-            return 0.0, Reason.OVERLOAD_HOLD, self._overload + '; re-arm to resume', None
-        if not self.armed:
-            return self._dialled(100.0, Reason.DISARMED, 'not armed: programmed feed')
-        if self._command_t_s < self._armed_t_s:  # nothing since arming
-            waited = t_s - self._armed_t_s
-            if waited <= s.watchdog_period_s:
-                return self._dialled(100.0, Reason.WATCHDOG,
-                                     'armed, waiting for the first feed command')
-            return self._dialled(s.safe_override_pct, Reason.WATCHDOG,
-                                 f'no feed command in {waited:.3f} s since arming')
-        age = t_s - self._command_t_s
-        if age > s.watchdog_period_s:
-            return self._dialled(s.safe_override_pct, Reason.WATCHDOG,
-                                 f'feed command {age:.3f} s old (watchdog '
-                                 f'{s.watchdog_period_s:g} s)')
-        if not math.isfinite(requested):
-            return self._dialled(s.safe_override_pct, Reason.INVALID_COMMAND,
-                                 f'feed command {requested!r} % is not finite')
-        table = self.table
-        if not table.min_pct <= requested <= table.max_pct:
-            return self._dialled(s.safe_override_pct, Reason.INVALID_COMMAND,
-                                 f'feed command {requested:.6g} % outside the {table.name} '
-                                 f'range [{table.min_pct:g}, {table.max_pct:g}] %')
-        held = self.shop.verdict()
-        if held is not None:
-            return self._dialled(held.pct, Reason(held.reason), held.detail)
-        shaped = self.shop.shape(requested)
-        assert shaped.reason in SHAPED
-        return shaped.pct, Reason(shaped.reason), shaped.detail, shaped
-
-    def _dialled(self, pct: float, reason: Reason,
-                 detail: str) -> tuple[float, Reason, str, Verdict | None]:
-        """A decision other than the request: the operator's dial, where read, only lowers it."""
-        dial = self.shop.dial_pct
-        if dial is not None and dial < pct:
-            return dial, reason, f"{detail}; the operator's dial at {dial:g} %", None
-        return pct, reason, detail, None
+        kernel.load().gate_control(self._params, self._state, 0.0, 2, self._cut)
+        return self._collect()
 
     def arrays(self) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """(parameters, state, levels) of this gate now, as the kernel's gate (``gate_decide``
-        and its neighbours in :mod:`turning_force.core.kernel.jit`) takes them: copies, from
-        which a compiled loop goes on with the same decisions. The kernel's gate runs the
-        safety gate, the cut detector and the overload reaction's outputs; where a shop-floor
-        behaviour it does not run is on, :func:`turning_force.core.kernel.why_python` says so
-        and the loop stays on this one."""
-        jit = kernel.load()
-        s, shop = self.settings, self.shop
-        p = np.zeros(jit.G_SIZE)
-        p[jit.G_WATCHDOG], p[jit.G_SAFE] = s.watchdog_period_s, s.safe_override_pct
-        p[jit.G_OVERLOAD], p[jit.G_ARMED] = s.overload_force_n, s.armed
-        p[jit.G_CONT] = self.table.continuous
-        p[jit.G_ENGAGE], p[jit.G_EXIT] = s.engage_force_n, s.exit_force_n
-        p[jit.G_DEBOUNCE], p[jit.G_REACT_LIMIT] = shop._debounce, shop.reaction_limit_n
-        p[jit.G_REACT_NEEDED] = math.ceil(s.reaction_delay_s / shop.period_s - 1e-9)
-        reactions = {'alarm': jit.REACTION_ALARM, 'stop': jit.REACTION_STOP}
-        p[jit.G_REACTION] = reactions.get(s.overload_reaction, jit.REACTION_NONE)
-        state = np.zeros(jit.GS_SIZE)
-        state[jit.GS_ARMED], state[jit.GS_STARTED] = self.armed, self.started
-        state[jit.GS_REQ], state[jit.GS_CMD_T] = self._requested, self._command_t_s
-        state[jit.GS_ARMED_T], state[jit.GS_HOLD] = self._armed_t_s, bool(self._overload)
-        state[jit.GS_LAST_F] = self._last_force_n
-        state[jit.GS_LAST_STATUS] = int(self._last_status)
-        state[jit.GS_ENGAGED], state[jit.GS_RUN] = shop.engaged, shop._run
-        state[jit.GS_ABOVE], state[jit.GS_REACTED] = shop._above, bool(shop._reaction)
-        return p, state, np.array(self.table.levels_pct, dtype=np.float64)
+        """(parameters, state, levels) of this gate now, as the compiled loops take them:
+        copies, from which a loop goes on with the same decisions."""
+        return self._params.copy(), self._state.copy(), self._levels.copy()
 
-    def _decision(self, pct: float, reason: Reason, detail: str) -> Decision:
-        applied = self.table.quantise(pct)
+    def _step(self, t_s: float, answer: int) -> Decision:
+        jit, dec = kernel.load(), self._dec
+        jit.gate_step(self._params, self._state, self._levels, float(t_s), dec, answer)
+        applied = float(dec[jit.DEC_APPLIED])
         code, bits = self.table.encode(applied)
-        shop = self.shop
-        return Decision(applied, self._requested, code, bits, self.armed, reason, detail,
-                        shop.inputs, shop.engaged, shop.alarm or bool(self._overload),
-                        shop.stop_request)
+        state = self._state
+        return Decision(applied, float(state[jit.GS_REQ]), code, bits, self.armed,
+                        Reason(int(dec[jit.DEC_REASON])), self._detail(jit, dec), self.inputs,
+                        bool(dec[jit.DEC_ENGAGED]), bool(dec[jit.DEC_ALARM]),
+                        bool(dec[jit.DEC_STOP]))
+
+    def _collect(self) -> CutRecord | None:
+        """A cut and a learning cut the last call finished, into the log and the lesson."""
+        jit, cut, state, s = kernel.load(), self._cut, self._state, self.settings
+        record = None
+        if cut[jit.CUT_READY] != 0.0:
+            cut[jit.CUT_READY] = 0.0
+            record = CutRecord(
+                index=int(cut[jit.CUT_INDEX]), tool=s.tool, start_s=float(cut[jit.CUT_START]),
+                end_s=float(cut[jit.CUT_END]), programmed_feed_s=float(cut[jit.CUT_FEED_S]),
+                max_force_n=float(cut[jit.CUT_MAXF]), mean_force_n=float(cut[jit.CUT_MEANF]),
+                min_override_pct=float(cut[jit.CUT_MINO]),
+                overload_events=int(cut[jit.CUT_EVENTS]), breakage=bool(cut[jit.CUT_BREAK]),
+                reachable_fraction=float(cut[jit.CUT_REACH]),
+                learned=bool(cut[jit.CUT_LEARNED]), complete=bool(cut[jit.CUT_COMPLETE]))
+            self._cuts.append(record)
+        if state[jit.GS_LEARNED] != 0.0:
+            state[jit.GS_LEARNED] = 0.0
+            level = float(state[jit.GS_L_LEVEL])
+            taught = TaughtTool(level, s.teach_fraction, level * s.teach_fraction,
+                                float(state[jit.GS_L_PEAK]), float(state[jit.GS_L_CUT_S]))
+            self._learned = Learned(s.tool, taught, _refusal(
+                jit, int(state[jit.GS_L_REFUSED]), s, level, float(state[jit.GS_L_LOW])))
+        return record
+
+    def _hold_text(self) -> str:
+        """Why the overload hold holds ('' where it does not)."""
+        jit, state = kernel.load(), self._state
+        code, force = int(state[jit.GS_HOLD]), float(state[jit.GS_HOLD_F])
+        if code == jit.HOLD_SATURATED:
+            text = f'current sensor saturated (force {force:.0f} N or more)'
+        elif code == jit.HOLD_NONFINITE:
+            text = f'force estimate {force!r} N is not finite'
+        elif code == jit.HOLD_ABOVE:
+            text = (f'force {force:.0f} N above overload_force_n '
+                    f'{float(state[jit.GS_HOLD_LIMIT]):g} N')
+        else:
+            return ''
+        if state[jit.GS_HOLD_AGAIN]:
+            text += '; re-armed while still over the limit'
+        return text
+
+    def _detail(self, jit: ModuleType, dec: FloatArray) -> str:
+        """The decision's one line, from its detail code and values."""
+        s, state, table = self.settings, self._state, self.table
+        code, a, b = int(dec[jit.DEC_DCODE]), float(dec[jit.DEC_DA]), float(dec[jit.DEC_DB])
+        requested = float(state[jit.GS_REQ])
+        again = '; re-arm to resume'
+        if code == jit.GD_HOLD:
+            return self._hold_text() + again
+        texts = {
+            jit.GD_NONE: '',
+            jit.GD_DISARMED: 'not armed: programmed feed',
+            jit.GD_WAITING: 'armed, waiting for the first feed command',
+            jit.GD_NO_COMMAND: f'no feed command in {a:.3f} s since arming',
+            jit.GD_STALE: f'feed command {a:.3f} s old (watchdog {s.watchdog_period_s:g} s)',
+            jit.GD_NONFINITE: f'feed command {a!r} % is not finite',
+            jit.GD_RANGE: (f'feed command {a:.6g} % outside the {table.name} range '
+                           f'[{table.min_pct:g}, {table.max_pct:g}] %'),
+            jit.GD_TEACH: f'teach-in: learning cut for {s.tool} at the programmed feed',
+            jit.GD_FLOOR: (f'request {requested:.4g} % raised to the feed floor '
+                           f'({s.min_cut_override_pct:g} %) while cutting'),
+            jit.GD_AIR: f'tool out of the cut: air-cut override {s.air_cut_override_pct:g} %',
+            jit.GD_DIAL: (f"the operator's dial at {b:g} % "
+                          f'({"times" if s.operator_dial == "product" else "below"} the '
+                          f'request {requested:.4g} %)'),
+            jit.GD_RISE: f'rising at most {s.rise_rate_pct_s:g} %/s toward {requested:.4g} %',
+        }
+        if code == jit.GD_BREAKAGE:
+            text = self._breakage_text(jit) + again
+        elif code == jit.GD_REACTION_HOLD:
+            text = self._reaction_text(jit) + again
+        elif code == jit.GD_STAND:
+            text = _STAND_DOWNS[int(a)]
+        else:
+            text = texts[code]
+        dial = float(dec[jit.DEC_DIALLED])
+        if math.isfinite(dial):
+            text += f"; the operator's dial at {dial:g} %"
+        return text
+
+    def _breakage_text(self, jit: ModuleType) -> str:
+        state = self._state
+        force, level = float(state[jit.GS_BREAK_F]), float(state[jit.GS_BREAK_LEVEL])
+        if state[jit.GS_BREAK] == jit.BREAK_SPIKE:
+            return (f'tool breakage: force {force:.0f} N is {force / level - 1.0:.0%} above its '
+                    f'recent level {level:.0f} N')
+        return (f'tool breakage: force {force:.0f} N is {1.0 - force / level:.0%} below its '
+                f'recent level {level:.0f} N while the program says the tool cuts')
+
+    def _reaction_text(self, jit: ModuleType) -> str:
+        s, state = self.settings, self._state
+        limit, above = float(state[jit.GS_REACT_LIM]), float(state[jit.GS_REACT_ABOVE])
+        return (f'overload reaction ({s.overload_reaction}): force above {limit:g} N '
+                f'({s.reaction_force_fraction:g} x overload_force_n) for '
+                f'{above * s.control_period_s:.2f} s')
+
+
+_STAND_DOWNS = {
+    1: ('thread cutting or tapping (threading input): FANUC runs the programmed feed; stood '
+        'down'),
+    2: 'program_enable_required, but no program-enable input is wired or read: programmed feed',
+    3: ('the part program has not enabled adaptive feed (program-enable input clear): '
+        'programmed feed'),
+}
+_REACTIONS = {'none': 0, 'alarm': 1, 'stop': 2, 'hold': 3}
+_DIAL_MODES = {'min': 0, 'product': 1, 'ignore': 2}
+
+
+def _flag(value: bool | None) -> float:
+    return math.nan if value is None else float(bool(value))
+
+
+def _refusal(jit: ModuleType, code: int, s: BridgeSettings, level: float, low: float) -> str:
+    """Why a learning cut was not learned ('' where it was)."""
+    if code == jit.LEARN_SHORT:
+        return (f'the cut was not longer than twice cut_settle_s ({s.cut_settle_s:g} s): '
+                'nothing settled to learn')
+    if code == jit.LEARN_FEED:
+        return (f'the cut did not run at the programmed feed throughout (down to {low:g} %): '
+                "its force is not the tool's level")
+    if code == jit.LEARN_UPSET:
+        return 'the cut had an overload or a breakage: not a level to regulate to'
+    if code == jit.LEARN_HIGH:
+        return (f'{s.teach_fraction:g} x {level:.0f} N is not below overload_force_n '
+                f'({s.overload_force_n:g} N)')
+    return ''
+
+
+def _gate_params(jit: ModuleType, s: BridgeSettings, table: OverrideTable) -> FloatArray:
+    """The compiled gate's parameters (``G_*``), the places of its rings among them."""
+    period = s.control_period_s
+    debounce = s.debounce_blocks(period)
+    settle = math.ceil(s.cut_settle_s / period - 1e-9)
+    window = max(1, round(s.breakage_window_s / period))
+    p = np.zeros(jit.G_SIZE)
+    p[jit.G_WATCHDOG], p[jit.G_SAFE] = s.watchdog_period_s, s.safe_override_pct
+    p[jit.G_OVERLOAD], p[jit.G_ARMED] = s.overload_force_n, s.armed
+    p[jit.G_CONT], p[jit.G_MIN], p[jit.G_MAX] = table.continuous, table.min_pct, table.max_pct
+    p[jit.G_PERIOD] = period
+    p[jit.G_ENGAGE], p[jit.G_EXIT], p[jit.G_DEBOUNCE] = s.engage_force_n, s.exit_force_n, debounce
+    p[jit.G_REACT_FRACTION] = s.reaction_force_fraction
+    p[jit.G_REACT_NEEDED] = math.ceil(s.reaction_delay_s / period - 1e-9)
+    p[jit.G_REACTION] = _REACTIONS[s.overload_reaction]
+    p[jit.G_SETTLE], p[jit.G_WINDOW] = settle, window
+    p[jit.G_SPIKE], p[jit.G_DROP] = s.breakage_spike_fraction, s.breakage_drop_fraction
+    p[jit.G_PE_REQUIRED], p[jit.G_THREAD_SD] = s.program_enable_required, s.threading_stand_down
+    p[jit.G_DIAL_MODE] = _DIAL_MODES[s.operator_dial]
+    p[jit.G_RISE], p[jit.G_FLOOR] = s.rise_rate_pct_s, s.min_cut_override_pct
+    p[jit.G_AIR], p[jit.G_TEACH] = s.air_cut_override_pct, s.teach_in
+    p[jit.G_TEACH_FRACTION] = s.teach_fraction
+    p[jit.G_RECENT_AT] = jit.GS_FIXED
+    p[jit.G_PENDING_AT] = jit.GS_FIXED + jit.BLOCK_FIELDS * debounce
+    p[jit.G_PENDING_CAP] = debounce + settle
+    p[jit.G_WINDOW_AT] = p[jit.G_PENDING_AT] + jit.BLOCK_FIELDS * (debounce + settle)
+    return p
+
+
+def _gate_state(jit: ModuleType, s: BridgeSettings, p: FloatArray) -> FloatArray:
+    """The compiled gate's first state (``GS_*``, then its rings)."""
+    state = np.zeros(int(p[jit.G_WINDOW_AT] + p[jit.G_WINDOW]))
+    state[jit.GS_REQ] = state[jit.GS_BLOCK_F] = math.nan
+    state[jit.GS_CMD_T] = state[jit.GS_ARMED_T] = -math.inf
+    state[jit.GS_LAST_STATUS] = EstimateStatus.OK
+    state[jit.GS_REACH] = -1.0
+    state[jit.GS_PE] = state[jit.GS_TH] = state[jit.GS_DIAL] = math.nan
+    state[jit.GS_APPLIED] = state[jit.GS_RAMP] = 100.0
+    state[jit.GS_LEARNING] = s.teach_in
+    return state

@@ -44,7 +44,6 @@ class ForceControllerNode(Node):
         # Compiled: its code is loaded here, before the first estimate.
         self._controller = make_controller(settings)
         self.diagnostics = Diagnostics(self)
-        self.diagnostics.set_value('kernel', 'compiled')
         self.diagnostics.watch('force/estimate', stale_after_s=5 * settings.control_period_s)
         self.diagnostics.set_value('controller', settings.controller)
         self._reachable = True

@@ -53,9 +53,7 @@ class ForceEstimatorNode(Node):
 
     def _make_estimator(self, settings: EstimatorSettings) -> ForceEstimator:
         """The estimator (compiled: its code is loaded here, before the first block)."""
-        estimator = ForceEstimator(settings)
-        self.diagnostics.set_value('kernel', 'compiled')
-        return estimator
+        return ForceEstimator(settings)
 
     def _reconfigure(self, settings: EstimatorSettings) -> None:
         self._estimator = self._make_estimator(settings)

@@ -200,7 +200,7 @@ class PmcBridgeNode(LifecycleNode):
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._active = True
-        self.gate.started = False   # restarts (and arms, if armed is set) at its next callback
+        self.gate.restart()   # starts again (and arms, if armed is set) at its next callback
         self.diagnostics.set_value('state', 'active')
         return TransitionCallbackReturn.SUCCESS
 
@@ -311,7 +311,7 @@ class PmcBridgeNode(LifecycleNode):
             pct, reason, detail = 100.0, Reason.DISARMED, 'inactive: programmed feed'
         code, bits = self.table.encode(pct)
         return Decision(pct, requested_pct, code, bits, False, reason, detail,
-                        self.gate.shop.inputs)
+                        self.gate.inputs)
 
     def _decide(self, requested_pct: float = float('nan')) -> Decision:
         if self._active:

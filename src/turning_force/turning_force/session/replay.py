@@ -97,7 +97,7 @@ def replay(session: Session, sets: Sequence[str] = (),
 
 def _currents(session: Session) -> CurrentArrays | list[CurrentBlock]:
     """The session's currents as the reader holds them (arrays), or its blocks where they
-    differ in length or sample period (those replay in Python)."""
+    differ in length or sample period (those replay one block at a time)."""
     if session.currents is not None:
         return session.currents
     return list(session.blocks)

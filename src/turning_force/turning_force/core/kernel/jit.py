@@ -1,15 +1,16 @@
-"""The compiled kernel: plant, estimator, controllers, gate and quantiser as numba functions on
-flat float64 arrays (parameters and state), the reference's arithmetic in the reference's order.
+"""The compiled kernel: the plant, the estimator, the control laws, the PMC gate with the shop
+floor's behaviours, the quantiser and the loops, as numba functions on flat float64 arrays
+(parameters and state). Each algorithm is here once; the Python classes that hold its arrays
+(:class:`~turning_force.core.plant.LathePlant`,
+:class:`~turning_force.core.estimation.ForceEstimator`,
+:class:`~turning_force.core.control.Controller`, :class:`~turning_force.core.pmc.OverrideGate`)
+and the loops (:mod:`turning_force.core.simulate`, :mod:`turning_force.core.batch`) call it.
 
-Every function mirrors one piece of the plain Python reference, named beside it; where the
-reference uses numpy, this code does what numpy computes element by element (``np.mean`` is a
-pairwise sum, ``np.clip`` a max then a min, ``np.mod`` Python's ``%``, ``np.sign(0)`` 0),
-where it uses Python's ``min``/``max`` their tie rules (:func:`pymin`, :func:`pymax`). Division
-by zero gives IEEE infinities (``error_model='numpy'``), as numpy and
-:func:`turning_force.core.lti.div` do. The slot numbers live here, next to the code that reads
-them, so that numba's on-disk cache (keyed on this file) can never pair old code with new
-slots; the objects that own them (the plant, the estimator, the controller, the gate)
-fill the arrays.
+Some choices keep the numbers the historical Python reference gave (the golden traces hold
+them): numpy's pairwise sum for a block's means (:func:`pairwise_sum`), Python's ``min``/``max``
+tie rules (:func:`pymin`, :func:`pymax`), products rather than ``** 2``. Division by zero gives
+IEEE infinities (``error_model='numpy'``). The slot numbers live here, next to the code that
+reads them; the objects that own the arrays fill them.
 
 Entry points have explicit signatures: importing this module compiles them, or with a warm
 cache (``cache=True``, in :func:`turning_force.core.kernel.cache_dir`) loads them from disk.
@@ -124,14 +125,63 @@ CS_QUEUE = 33                                 # then the smc predictor's queue
 OUT_PCT, OUT_ERR, OUT_S, OUT_REACH = range(4)
 
 # --- gate -----------------------------------------------------------------------------------
-G_WATCHDOG, G_SAFE, G_OVERLOAD, G_ARMED, G_CONT = range(5)
-# the shop floor's cut detector and overload reaction (outputs only: no hold, core/shopfloor.py)
-G_ENGAGE, G_EXIT, G_DEBOUNCE, G_REACT_LIMIT, G_REACT_NEEDED, G_REACTION = range(5, 11)
-G_SIZE = 11
-REACTION_NONE, REACTION_ALARM, REACTION_STOP = 0, 1, 2
-GS_ARMED, GS_STARTED, GS_REQ, GS_CMD_T, GS_ARMED_T, GS_HOLD, GS_LAST_F, GS_LAST_STATUS = range(8)
-GS_ENGAGED, GS_RUN, GS_ABOVE, GS_REACTED = range(8, 12)
-GS_SIZE = 12
+# Reasons beyond the safety gate's (FeedOverride's REASON_*).
+OPERATOR, AIR_CUT, TOOL_BREAKAGE, RISE_LIMIT, FEED_FLOOR, TEACH_IN = 4, 7, 8, 9, 10, 11
+# parameters: the safety gate, then the shop floor (core/shopfloor.py)
+G_WATCHDOG, G_SAFE, G_OVERLOAD, G_ARMED, G_CONT, G_MIN, G_MAX, G_PERIOD = range(8)
+G_ENGAGE, G_EXIT, G_DEBOUNCE, G_REACT_FRACTION, G_REACT_NEEDED, G_REACTION = range(8, 14)
+G_SETTLE, G_WINDOW, G_SPIKE, G_DROP, G_PE_REQUIRED, G_THREAD_SD, G_DIAL_MODE = range(14, 21)
+G_RISE, G_FLOOR, G_AIR, G_TEACH, G_TEACH_FRACTION = range(21, 26)
+G_RECENT_AT, G_PENDING_AT, G_PENDING_CAP, G_WINDOW_AT = range(26, 30)
+G_SIZE = 30
+REACTION_NONE, REACTION_ALARM, REACTION_STOP, REACTION_HOLD = 0, 1, 2, 3
+DIAL_MIN, DIAL_PRODUCT, DIAL_IGNORE = 0, 1, 2
+# hold causes (the overload hold's detail): saturated, not finite, above the limit
+HOLD_NONE, HOLD_SATURATED, HOLD_NONFINITE, HOLD_ABOVE = 0, 1, 2, 3
+# stand-downs: threading, no program-enable input, program enable clear
+STAND_NONE, STAND_THREADING, STAND_NO_PE, STAND_PE_CLEAR = 0, 1, 2, 3
+BREAK_NONE, BREAK_SPIKE, BREAK_DROP = 0, 1, 2
+# a learning cut refused: too short, not at the programmed feed, overload or breakage, too high
+LEARN_OK, LEARN_SHORT, LEARN_FEED, LEARN_UPSET, LEARN_HIGH = 0, 1, 2, 3, 4
+# state: the safety gate
+GS_ARMED, GS_STARTED, GS_REQ, GS_CMD_T, GS_ARMED_T, GS_LAST_F, GS_LAST_STATUS = range(7)
+GS_HOLD, GS_HOLD_F, GS_HOLD_LIMIT, GS_HOLD_AGAIN, GS_REACH = range(7, 12)
+# the machine's inputs (NaN: not wired), the shop floor's state
+GS_PE, GS_TH, GS_DIAL = range(12, 15)
+GS_ENGAGED, GS_RUN, GS_CUT_BLOCKS, GS_ABOVE, GS_IN_EVENT, GS_BLOCK_F, GS_BLOCK_EVENT = \
+    range(15, 22)
+GS_BREAK, GS_BREAK_F, GS_BREAK_LEVEL, GS_REACTED, GS_REACT_ABOVE, GS_APPLIED, GS_RAMP = \
+    range(22, 29)
+GS_LEARNING = 29
+# what a learning cut taught (GS_LEARNED 1 until taken): level, peak, its length, refusal
+GS_LEARNED, GS_L_LEVEL, GS_L_PEAK, GS_L_CUT_S, GS_L_REFUSED, GS_L_LOW = range(30, 36)
+# the cut in progress: its blocks' sums (Neumaier-compensated) and extremes
+GS_C_INDEX, GS_C_START_T, GS_C_END_T, GS_C_FEED, GS_C_FEED_C, GS_C_MAXF = range(36, 42)
+GS_C_SUMF, GS_C_SUMF_C, GS_C_NF, GS_C_MINO, GS_C_EVENTS, GS_C_BREAK = range(42, 48)
+GS_C_REACH, GS_C_NCMD, GS_C_N, GS_CUTS = range(48, 52)
+# the learning cut's blocks (past cut_settle_s from both ends)
+GS_LA_SUMF, GS_LA_SUMF_C, GS_LA_NF, GS_LA_MAXF, GS_LA_N, GS_LA_OFF100, GS_LA_LOW = \
+    range(52, 59)
+GS_LA_UPSET = 59
+# the rings: blocks before the cut (GS_R_*), blocks of the cut not yet summed (GS_P_*), the
+# breakage window's forces (GS_W_*): count and next place; their slots from G_*_AT on
+GS_R_N, GS_R_NEXT, GS_P_N, GS_P_NEXT, GS_W_N, GS_W_NEXT = range(60, 66)
+GS_REACT_LIM = 66     # the reaction's limit when it fired
+GS_FIXED = 67
+BLOCK_FIELDS = 6     # a block in a ring: end time, force, applied, reachable, event, breakage
+# a cut record (CUT_*): what a finished cut leaves in the gate's output row
+CUT_INDEX, CUT_START, CUT_END, CUT_FEED_S, CUT_MAXF, CUT_MEANF, CUT_MINO = range(7)
+CUT_EVENTS, CUT_BREAK, CUT_REACH, CUT_LEARNED, CUT_COMPLETE, CUT_READY = range(7, 13)
+CUT_FIELDS = 13
+# a decision (DEC_*): applied, reason, the pct before quantisation, detail code and values,
+# whether the request went through (the rise limit's base), the outputs
+DEC_APPLIED, DEC_REASON, DEC_PCT, DEC_DCODE, DEC_DA, DEC_DB, DEC_DC, DEC_DIALLED = range(8)
+DEC_SHAPED, DEC_ALARM, DEC_STOP, DEC_ENGAGED = range(8, 12)
+DEC_FIELDS = 12
+# detail codes of a decision (the gate's one line, in pmc.py's words)
+(GD_NONE, GD_HOLD, GD_DISARMED, GD_WAITING, GD_NO_COMMAND, GD_STALE, GD_NONFINITE,
+ GD_RANGE, GD_BREAKAGE, GD_REACTION_HOLD, GD_STAND, GD_TEACH, GD_FLOOR, GD_AIR, GD_DIAL,
+ GD_RISE) = range(16)
 
 # --- trace columns (core/simulate.py TRACE_NAMES) -------------------------------------------
 TRACE_COLUMNS = 11
@@ -1060,164 +1110,599 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
     out[OUT_PCT] = sent
 
 
-# --- the gate (core/pmc.py OverrideGate) ----------------------------------------------------
+# --- the gate: the safety gate and the shop floor (core/pmc.py, core/shopfloor.py) ---------
 
 @compiled
-def _over_limit(gp: np.ndarray, force: float, status: float) -> bool:
-    """OverrideGate._over_limit, as a flag."""
-    return status == SATURATED or not math.isfinite(force) or force > gp[G_OVERLOAD]
+def _add(gs: np.ndarray, at: int, x: float) -> None:
+    """gs[at] += x, Neumaier-compensated in gs[at + 1] (the sum is gs[at] + gs[at + 1])."""
+    total = gs[at]
+    t = total + x
+    if abs(total) >= abs(x):
+        gs[at + 1] += (total - t) + x
+    else:
+        gs[at + 1] += (x - t) + total
+    gs[at] = t
 
 
 @compiled
-def _observe(gp: np.ndarray, gs: np.ndarray, force: float) -> None:
-    """ShopFloor.observe where it sets outputs only (kernel.NEUTRAL: no breakage, no learning,
-    no stand-down): the cut detector (ShopFloor._engagement) and the overload reaction."""
+def _ring_at(gs: np.ndarray, at: int, cap: int, next_slot: int, age: int) -> int:
+    """Where the block ``age`` blocks older than the newest is (0: the newest)."""
+    return at + BLOCK_FIELDS * ((int(gs[next_slot]) - 1 - age) % cap)
+
+
+@compiled
+def _ring_put(gs: np.ndarray, at: int, cap: int, n_slot: int, next_slot: int, t: float,
+              force: float, applied: float, reach: float, event: float,
+              breakage: float) -> None:
+    i = int(gs[next_slot])
+    base = at + BLOCK_FIELDS * i
+    gs[base], gs[base + 1], gs[base + 2] = t, force, applied
+    gs[base + 3], gs[base + 4], gs[base + 5] = reach, event, breakage
+    gs[next_slot] = (i + 1) % cap
+    gs[n_slot] = min(gs[n_slot] + 1.0, float(cap))
+
+
+@compiled
+def _cut_add(gp: np.ndarray, gs: np.ndarray, base: int) -> None:
+    """One block into the cut record's sums (core/shopfloor.py CutLog._record)."""
+    t, force, applied = gs[base], gs[base + 1], gs[base + 2]
+    if gs[GS_C_N] == 0.0:
+        gs[GS_C_START_T], gs[GS_C_MINO] = t, applied
+    gs[GS_C_END_T] = t
+    gs[GS_C_N] += 1.0
+    _add(gs, GS_C_FEED, applied / 100.0 * gp[G_PERIOD])
+    if math.isfinite(force):
+        gs[GS_C_MAXF] = force if gs[GS_C_NF] == 0.0 else pymax(gs[GS_C_MAXF], force)
+        _add(gs, GS_C_SUMF, force)
+        gs[GS_C_NF] += 1.0
+    gs[GS_C_MINO] = pymin(gs[GS_C_MINO], applied)
+    gs[GS_C_EVENTS] += gs[base + 4]
+    gs[GS_C_BREAK] = pymax(gs[GS_C_BREAK], gs[base + 5])
+    if gs[base + 3] >= 0.0:
+        gs[GS_C_NCMD] += 1.0
+        gs[GS_C_REACH] += gs[base + 3]
+
+
+@compiled
+def _learn_add(gs: np.ndarray, base: int) -> None:
+    """One block into the learning cut's sums (ShopFloor._learn)."""
+    force, applied = gs[base + 1], gs[base + 2]
+    if gs[GS_LA_N] == 0.0:
+        gs[GS_LA_LOW] = applied
+    gs[GS_LA_N] += 1.0
+    if math.isfinite(force):
+        gs[GS_LA_MAXF] = force if gs[GS_LA_NF] == 0.0 else pymax(gs[GS_LA_MAXF], force)
+        _add(gs, GS_LA_SUMF, force)
+        gs[GS_LA_NF] += 1.0
+    if applied != 100.0:
+        gs[GS_LA_OFF100] = 1.0
+    gs[GS_LA_LOW] = pymin(gs[GS_LA_LOW], applied)
+    if gs[base + 4] != 0.0 or gs[base + 5] != 0.0:
+        gs[GS_LA_UPSET] = 1.0
+
+
+@compiled
+def _cut_push(gp: np.ndarray, gs: np.ndarray, t: float, force: float, applied: float,
+              reach: float, event: float, breakage: float) -> None:
+    """A block of the cut in progress. The cut's record leaves out the last debounce - 1
+    blocks when the tool leaves (they were already out), and the learning cut cut_settle_s more
+    at both ends: a block is summed into the record once it is debounce - 1 blocks old, into
+    the learning cut once it is debounce - 1 + settle blocks old (and not among the first
+    settle). The ring (debounce + settle blocks) holds them until then."""
+    cap = int(gp[G_PENDING_CAP])
+    trimmed = int(gp[G_DEBOUNCE]) - 1
+    settle = int(gp[G_SETTLE])
+    index = int(gs[GS_C_INDEX])
+    gs[GS_C_INDEX] = index + 1
+    at = int(gp[G_PENDING_AT])
+    _ring_put(gs, at, cap, GS_P_N, GS_P_NEXT, t, force, applied, reach, event, breakage)
+    if gs[GS_P_N] > trimmed:
+        _cut_add(gp, gs, _ring_at(gs, at, cap, GS_P_NEXT, trimmed))
+    if gs[GS_P_N] > trimmed + settle and index - trimmed - settle >= settle:
+        _learn_add(gs, _ring_at(gs, at, cap, GS_P_NEXT, trimmed + settle))
+
+
+@compiled
+def _cut_clear(gs: np.ndarray) -> None:
+    for slot in range(GS_C_INDEX, GS_CUTS):
+        gs[slot] = 0.0
+    for slot in range(GS_LA_SUMF, GS_LA_UPSET + 1):
+        gs[slot] = 0.0
+    gs[GS_P_N], gs[GS_P_NEXT] = 0.0, 0.0
+
+
+@compiled
+def _cut_record(gp: np.ndarray, gs: np.ndarray, learned: bool, complete: bool,
+                cut: np.ndarray) -> None:
+    """The cut in progress as a record (CUT_*) into ``cut``, CUT_READY set; then forgotten."""
+    if gs[GS_C_N] > 0.0:
+        gs[GS_CUTS] += 1.0
+        nf, ncmd = gs[GS_C_NF], gs[GS_C_NCMD]
+        cut[CUT_INDEX] = gs[GS_CUTS]
+        cut[CUT_START] = gs[GS_C_START_T] - gp[G_PERIOD]
+        cut[CUT_END] = gs[GS_C_END_T]
+        cut[CUT_FEED_S] = gs[GS_C_FEED] + gs[GS_C_FEED_C]
+        cut[CUT_MAXF] = gs[GS_C_MAXF] if nf > 0.0 else math.nan
+        cut[CUT_MEANF] = (gs[GS_C_SUMF] + gs[GS_C_SUMF_C]) / nf if nf > 0.0 else math.nan
+        cut[CUT_MINO], cut[CUT_EVENTS] = gs[GS_C_MINO], gs[GS_C_EVENTS]
+        cut[CUT_BREAK] = gs[GS_C_BREAK]
+        cut[CUT_REACH] = gs[GS_C_REACH] / ncmd if ncmd > 0.0 else math.nan
+        cut[CUT_LEARNED] = 1.0 if learned else 0.0
+        cut[CUT_COMPLETE] = 1.0 if complete else 0.0
+        cut[CUT_READY] = 1.0
+    _cut_clear(gs)
+
+
+@compiled
+def _learn(gp: np.ndarray, gs: np.ndarray) -> None:
+    """A learning cut is over (ShopFloor._learn): its level, the mean force between
+    cut_settle_s after the entry and cut_settle_s before the exit; refused where it cannot be
+    the tool's level (then the next cut is tried)."""
+    nf = gs[GS_LA_NF]
+    level = (gs[GS_LA_SUMF] + gs[GS_LA_SUMF_C]) / nf if nf > 0.0 else math.nan
+    refused = LEARN_OK
+    if nf == 0.0:
+        refused = LEARN_SHORT
+    elif gs[GS_LA_OFF100] != 0.0:
+        refused = LEARN_FEED
+    elif gs[GS_LA_UPSET] != 0.0 or gs[GS_REACTED] != 0.0 or gs[GS_BREAK] != 0.0:
+        refused = LEARN_UPSET
+    elif level * gp[G_TEACH_FRACTION] >= gp[G_OVERLOAD]:
+        refused = LEARN_HIGH
+    gs[GS_LEARNING] = 1.0 if refused != LEARN_OK else 0.0
+    gs[GS_LEARNED], gs[GS_L_LEVEL] = 1.0, level
+    gs[GS_L_PEAK] = gs[GS_LA_MAXF] if nf > 0.0 else math.nan
+    gs[GS_L_CUT_S] = gs[GS_LA_N] * gp[G_PERIOD]
+    gs[GS_L_REFUSED], gs[GS_L_LOW] = refused, gs[GS_LA_LOW]
+
+
+@compiled
+def _engagement(gp: np.ndarray, gs: np.ndarray, force: float, cut: np.ndarray) -> None:
+    """The cut detector (ShopFloor._engagement): in after ``debounce`` blocks above
+    engage_force_n, out after as many below exit_force_n; a cut's record from the first block
+    of the run that engaged to the last before the run that left."""
     debounce = gp[G_DEBOUNCE]
     if gs[GS_ENGAGED] == 0.0:
         gs[GS_RUN] = gs[GS_RUN] + 1.0 if force > gp[G_ENGAGE] else 0.0
         if gs[GS_RUN] >= debounce:
-            gs[GS_ENGAGED], gs[GS_RUN] = 1.0, 0.0
-    else:
-        gs[GS_RUN] = gs[GS_RUN] + 1.0 if force < gp[G_EXIT] else 0.0
-        if gs[GS_RUN] >= debounce:
-            gs[GS_ENGAGED], gs[GS_RUN] = 0.0, 0.0
-    acting = gs[GS_ARMED] != 0.0
-    gs[GS_ABOVE] = gs[GS_ABOVE] + 1.0 if force > gp[G_REACT_LIMIT] and acting else 0.0
+            gs[GS_ENGAGED], gs[GS_CUT_BLOCKS] = 1.0, gs[GS_RUN]
+            back = min(int(gs[GS_RUN]) - 1, int(gs[GS_R_N]))
+            at, cap = int(gp[G_RECENT_AT]), int(debounce)
+            for age in range(back - 1, -1, -1):
+                b = _ring_at(gs, at, cap, GS_R_NEXT, age)
+                _cut_push(gp, gs, gs[b], gs[b + 1], gs[b + 2], gs[b + 3], gs[b + 4],
+                          gs[b + 5])
+            gs[GS_R_N], gs[GS_R_NEXT], gs[GS_RUN] = 0.0, 0.0, 0.0
+        return
+    gs[GS_CUT_BLOCKS] += 1.0
+    gs[GS_RUN] = gs[GS_RUN] + 1.0 if force < gp[G_EXIT] else 0.0
+    if gs[GS_RUN] >= debounce:
+        gs[GS_ENGAGED] = 0.0
+        learned = False
+        if gs[GS_LEARNING] != 0.0:
+            _learn(gp, gs)
+            learned = gs[GS_L_REFUSED] == LEARN_OK
+        _cut_record(gp, gs, learned, True, cut)
+        gs[GS_RUN] = 0.0
+
+
+@compiled
+def _stand_down(gp: np.ndarray, gs: np.ndarray) -> int:
+    """Why the option stands down to the programmed feed (STAND_*), from the inputs."""
+    if gp[G_THREAD_SD] != 0.0 and gs[GS_TH] == 1.0:
+        return STAND_THREADING
+    if gp[G_PE_REQUIRED] != 0.0:
+        if math.isnan(gs[GS_PE]):
+            return STAND_NO_PE
+        if gs[GS_PE] == 0.0:
+            return STAND_PE_CLEAR
+    return STAND_NONE
+
+
+@compiled
+def _dial(gp: np.ndarray, gs: np.ndarray) -> float:
+    """The operator's dial in force, NaN where it is not read or is ignored."""
+    dial = gs[GS_DIAL]
+    if gp[G_DIAL_MODE] == DIAL_IGNORE or not math.isfinite(dial):
+        return math.nan
+    return pymax(dial, 0.0)
+
+
+@compiled
+def _window_level(gp: np.ndarray, gs: np.ndarray) -> float:
+    at, n = int(gp[G_WINDOW_AT]), int(gs[GS_W_N])
+    total, c = 0.0, 0.0
+    for i in range(n):
+        x = gs[at + i]
+        t = total + x
+        c += (total - t) + x if abs(total) >= abs(x) else (x - t) + total
+        total = t
+    return (total + c) / n
+
+
+@compiled
+def _observe(gp: np.ndarray, gs: np.ndarray, force: float, armed: bool, hold_started: bool,
+             cut: np.ndarray) -> None:
+    """ShopFloor.observe: a valid, finite force estimate of the current block: the cut
+    detector, overload events, the overload reaction, tool breakage."""
+    gs[GS_BLOCK_F] = force
+    _engagement(gp, gs, force, cut)
+    acting = armed and _stand_down(gp, gs) == STAND_NONE
+    limit = gp[G_REACT_FRACTION] * gp[G_OVERLOAD]
+    if force > limit and gs[GS_IN_EVENT] == 0.0:
+        gs[GS_IN_EVENT], gs[GS_BLOCK_EVENT] = 1.0, 1.0
+    elif force < 0.9 * limit:   # shopfloor.EVENT_RESET_FRACTION
+        gs[GS_IN_EVENT] = 0.0
+    if hold_started:
+        gs[GS_BLOCK_EVENT] = 1.0
+    gs[GS_ABOVE] = gs[GS_ABOVE] + 1.0 if force > limit and acting else 0.0
     if gp[G_REACTION] != REACTION_NONE and gs[GS_REACTED] == 0.0 \
             and gs[GS_ABOVE] >= gp[G_REACT_NEEDED]:
-        gs[GS_REACTED] = 1.0
-
-
-@compiled
-def gate_on_estimate(gp: np.ndarray, gs: np.ndarray, force: float, status: int) -> None:
-    """OverrideGate.on_estimate, where only the override counts (the core loop's trace): the
-    shop floor's outputs are not kept up (:func:`gate_observe`)."""
-    if status == INVALID_INPUT or status == STALE:   # noqa: SIM109 -- numba: no tuple ``in``
+        gs[GS_REACTED], gs[GS_REACT_ABOVE], gs[GS_REACT_LIM] = 1.0, gs[GS_ABOVE], limit
+    if gs[GS_ENGAGED] == 0.0:
+        gs[GS_W_N], gs[GS_W_NEXT] = 0.0, 0.0
         return
-    gs[GS_LAST_F], gs[GS_LAST_STATUS] = force, status
-    if _over_limit(gp, force, status) and gs[GS_HOLD] == 0.0:
-        gs[GS_HOLD] = 1.0
+    settled = gs[GS_CUT_BLOCKS] > gp[G_SETTLE]
+    size = int(gp[G_WINDOW])
+    if settled and int(gs[GS_W_N]) == size and acting and gs[GS_BREAK] == BREAK_NONE:
+        level = _window_level(gp, gs)
+        if level > 0.0:
+            if gp[G_SPIKE] > 0.0 and force > (1.0 + gp[G_SPIKE]) * level:
+                gs[GS_BREAK] = BREAK_SPIKE
+            elif gp[G_DROP] > 0.0 and gs[GS_PE] == 1.0 and force < (1.0 - gp[G_DROP]) * level:
+                gs[GS_BREAK] = BREAK_DROP
+            gs[GS_BREAK_F], gs[GS_BREAK_LEVEL] = force, level
+    if settled:
+        i = int(gs[GS_W_NEXT])
+        gs[int(gp[G_WINDOW_AT]) + i] = force
+        gs[GS_W_NEXT] = (i + 1) % size
+        gs[GS_W_N] = min(gs[GS_W_N] + 1.0, float(size))
 
 
 @compiled
-def gate_observe(gp: np.ndarray, gs: np.ndarray, force: float, status: int) -> None:
-    """OverrideGate.on_estimate whole: the override's state and the shop floor's outputs (the
-    cut detector, the overload reaction)."""
-    gate_on_estimate(gp, gs, force, status)
-    if status != INVALID_INPUT and status != STALE and math.isfinite(force):
-        _observe(gp, gs, force)
+def _over_code(gp: np.ndarray, force: float, status: float) -> int:
+    """Why a force holds the feed (HOLD_*): a saturated sensor, a force that is not finite,
+    or above overload_force_n."""
+    if status == SATURATED:
+        return HOLD_SATURATED
+    if not math.isfinite(force):
+        return HOLD_NONFINITE
+    if force > gp[G_OVERLOAD]:
+        return HOLD_ABOVE
+    return HOLD_NONE
+
+
+@compiled
+def gate_on_estimate(gp: np.ndarray, gs: np.ndarray, force: float, status: int,
+                     cut: np.ndarray) -> bool:
+    """OverrideGate.on_estimate: a force estimate; True where it has just started an overload
+    hold. A saturated or non-finite force counts as over the limit; an invalid or stale
+    estimate (it repeats the last good force) says nothing new and is not judged. A cut that
+    ends writes its record into ``cut``."""
+    if status == INVALID_INPUT or status == STALE:   # noqa: SIM109 -- numba: no tuple ``in``
+        return False
+    gs[GS_LAST_F], gs[GS_LAST_STATUS] = force, status
+    code = _over_code(gp, force, status)
+    started = code != HOLD_NONE and gs[GS_HOLD] == HOLD_NONE
+    if started:
+        gs[GS_HOLD], gs[GS_HOLD_F], gs[GS_HOLD_LIMIT] = code, force, gp[G_OVERLOAD]
+        gs[GS_HOLD_AGAIN] = 0.0
+    if math.isfinite(force):
+        _observe(gp, gs, force, gs[GS_ARMED] != 0.0, started, cut)
+    return started
 
 
 @compiled
 def gate_arm(gp: np.ndarray, gs: np.ndarray, t: float) -> None:
-    """OverrideGate.arm: the reactions cleared (ShopFloor.rearm); the hold stays while the last
-    force is over the limit, else clears."""
+    """OverrideGate.arm: armed at ``t``; the latched reactions cleared; the overload hold
+    cleared, unless the last force estimate is still over the limit."""
     gs[GS_ARMED], gs[GS_ARMED_T] = 1.0, t
-    gs[GS_REACTED], gs[GS_ABOVE] = 0.0, 0.0
-    gs[GS_HOLD] = 1.0 if _over_limit(gp, gs[GS_LAST_F], gs[GS_LAST_STATUS]) else 0.0
+    gs[GS_BREAK], gs[GS_REACTED], gs[GS_ABOVE] = BREAK_NONE, 0.0, 0.0
+    code = _over_code(gp, gs[GS_LAST_F], gs[GS_LAST_STATUS])
+    if code != HOLD_NONE:
+        gs[GS_HOLD_AGAIN] = 1.0 if gs[GS_HOLD] != HOLD_NONE else 0.0
+        gs[GS_HOLD], gs[GS_HOLD_F], gs[GS_HOLD_LIMIT] = code, gs[GS_LAST_F], gp[G_OVERLOAD]
+    else:
+        gs[GS_HOLD] = HOLD_NONE
+
+
+@compiled
+def gate_on_command(gs: np.ndarray, requested: float, t: float, reachable: float) -> None:
+    """OverrideGate.on_command: the controller's request at ``t``; ``reachable`` its flag
+    (1, 0; -1: none) for the cut log."""
+    gs[GS_REQ], gs[GS_CMD_T], gs[GS_REACH] = requested, t, reachable
+
+
+@compiled
+def gate_inputs(gs: np.ndarray, program_enable: float, threading: float,
+                dial: float) -> None:
+    """OverrideGate.on_inputs: the machine's inputs (1 set, 0 clear, NaN not wired)."""
+    gs[GS_PE], gs[GS_TH], gs[GS_DIAL] = program_enable, threading, dial
+
+
+@compiled
+def _dialled(gp: np.ndarray, gs: np.ndarray, dec: np.ndarray, pct: float, reason: int,
+             code: int) -> None:
+    """A decision other than the request: the operator's dial, where read, only lowers it."""
+    dial = _dial(gp, gs)
+    dec[DEC_REASON], dec[DEC_DCODE], dec[DEC_DIALLED] = reason, code, math.nan
+    if math.isfinite(dial) and dial < pct:
+        pct = dial
+        dec[DEC_DIALLED] = dial
+    dec[DEC_PCT] = pct
+
+
+@compiled
+def _judge(gp: np.ndarray, gs: np.ndarray, t: float, dec: np.ndarray) -> None:
+    """OverrideGate._judge: the override before quantisation (DEC_PCT), its reason and detail,
+    and whether the request went through (DEC_SHAPED), in the gate's order: the overload hold,
+    disarmed, the watchdog, an invalid command, the shop floor's holds and stand-downs, then
+    the request shaped (feed floor, air cut, dial, rise limit)."""
+    requested = gs[GS_REQ]
+    dec[DEC_SHAPED], dec[DEC_DA], dec[DEC_DB], dec[DEC_DC] = 0.0, math.nan, math.nan, math.nan
+    if gs[GS_HOLD] != HOLD_NONE:
+        dec[DEC_PCT], dec[DEC_REASON], dec[DEC_DCODE] = 0.0, OVERLOAD_HOLD, GD_HOLD
+        dec[DEC_DIALLED] = math.nan
+        return
+    if gs[GS_ARMED] == 0.0:
+        _dialled(gp, gs, dec, 100.0, DISARMED, GD_DISARMED)
+        return
+    if gs[GS_CMD_T] < gs[GS_ARMED_T]:   # nothing since arming
+        waited = t - gs[GS_ARMED_T]
+        dec[DEC_DA] = waited
+        if waited <= gp[G_WATCHDOG]:
+            _dialled(gp, gs, dec, 100.0, WATCHDOG, GD_WAITING)
+        else:
+            _dialled(gp, gs, dec, gp[G_SAFE], WATCHDOG, GD_NO_COMMAND)
+        return
+    age = t - gs[GS_CMD_T]
+    if age > gp[G_WATCHDOG]:
+        dec[DEC_DA] = age
+        _dialled(gp, gs, dec, gp[G_SAFE], WATCHDOG, GD_STALE)
+        return
+    dec[DEC_DA] = requested
+    if not math.isfinite(requested):
+        _dialled(gp, gs, dec, gp[G_SAFE], INVALID_COMMAND, GD_NONFINITE)
+        return
+    if not gp[G_MIN] <= requested <= gp[G_MAX]:
+        _dialled(gp, gs, dec, gp[G_SAFE], INVALID_COMMAND, GD_RANGE)
+        return
+    if gs[GS_BREAK] != BREAK_NONE:
+        _dialled(gp, gs, dec, 0.0, TOOL_BREAKAGE, GD_BREAKAGE)
+        return
+    if gs[GS_REACTED] != 0.0 and gp[G_REACTION] == REACTION_HOLD:
+        _dialled(gp, gs, dec, 0.0, OVERLOAD_HOLD, GD_REACTION_HOLD)
+        return
+    stand = _stand_down(gp, gs)
+    if stand != STAND_NONE:
+        dec[DEC_DA] = stand
+        _dialled(gp, gs, dec, 100.0, OPERATOR, GD_STAND)
+        return
+    if gs[GS_LEARNING] != 0.0:
+        _dialled(gp, gs, dec, 100.0, TEACH_IN, GD_TEACH)
+        return
+    # The request, shaped (ShopFloor.shape).
+    pct, reason, code = requested, NORMAL, GD_NONE
+    engaged = gs[GS_ENGAGED] != 0.0
+    if engaged and gp[G_FLOOR] > 0.0 and pct < gp[G_FLOOR]:
+        pct, reason, code = gp[G_FLOOR], FEED_FLOOR, GD_FLOOR
+    if not engaged and gp[G_AIR] > 0.0 and pct > gp[G_AIR]:
+        pct, reason, code = gp[G_AIR], AIR_CUT, GD_AIR
+    dial = _dial(gp, gs)
+    if math.isfinite(dial):
+        if gp[G_DIAL_MODE] == DIAL_PRODUCT:
+            dialled = pct * (pymin(dial, 100.0) / 100.0)
+        else:
+            dialled = pymin(pct, dial)
+        if dialled < pct:
+            pct, reason, code = dialled, OPERATOR, GD_DIAL
+            dec[DEC_DB] = dial
+    ceiling = gs[GS_RAMP] + gp[G_RISE] * gp[G_PERIOD]
+    if gp[G_RISE] > 0.0 and pct > ceiling:
+        pct, reason, code = ceiling, RISE_LIMIT, GD_RISE
+    dec[DEC_PCT], dec[DEC_REASON], dec[DEC_DCODE] = pct, reason, code
+    dec[DEC_DIALLED], dec[DEC_SHAPED] = math.nan, 1.0
 
 
 @compiled
 def gate_decide(gp: np.ndarray, gs: np.ndarray, levels: np.ndarray, t: float,
-                decision: np.ndarray) -> None:
-    """OverrideGate.decide: decision = (applied, reason). The one place the gate's rules
-    are; behaviours the gate gains extend this function."""
-    requested = gs[GS_REQ]
-    if gs[GS_HOLD] != 0.0:
-        pct, reason = 0.0, OVERLOAD_HOLD
-    elif gs[GS_ARMED] == 0.0:
-        pct, reason = 100.0, DISARMED
-    elif gs[GS_CMD_T] < gs[GS_ARMED_T]:
-        waited = t - gs[GS_ARMED_T]
-        pct = 100.0 if waited <= gp[G_WATCHDOG] else gp[G_SAFE]
-        reason = WATCHDOG
-    elif t - gs[GS_CMD_T] > gp[G_WATCHDOG]:
-        pct, reason = gp[G_SAFE], WATCHDOG
-    elif not (math.isfinite(requested)
-              and levels[0] <= requested <= levels[levels.size - 1]):
-        pct, reason = gp[G_SAFE], INVALID_COMMAND
+                dec: np.ndarray) -> None:
+    """OverrideGate.decide: the override for now (DEC_*), the state as it is."""
+    _judge(gp, gs, t, dec)
+    dec[DEC_APPLIED] = quantise(levels, gp[G_CONT] != 0.0, dec[DEC_PCT])
+    dec[DEC_ALARM] = 1.0 if (gs[GS_BREAK] != BREAK_NONE or gs[GS_REACTED] != 0.0
+                             or gs[GS_HOLD] != HOLD_NONE) else 0.0
+    dec[DEC_STOP] = 1.0 if (gs[GS_REACTED] != 0.0
+                            and gp[G_REACTION] == REACTION_STOP) else 0.0
+    dec[DEC_ENGAGED] = gs[GS_ENGAGED]
+
+
+@compiled
+def gate_answer(gp: np.ndarray, gs: np.ndarray, levels: np.ndarray, t: float,
+                dec: np.ndarray) -> None:
+    """OverrideGate.answer: the decision answering the block that ends at ``t`` (the PMC's
+    from the next block on); the block goes to the cut log, the rise limit takes its base."""
+    gate_decide(gp, gs, levels, t, dec)
+    applied = dec[DEC_APPLIED]
+    force, event = gs[GS_BLOCK_F], gs[GS_BLOCK_EVENT]
+    breakage = 1.0 if gs[GS_BREAK] != BREAK_NONE else 0.0
+    if gs[GS_ENGAGED] != 0.0:
+        _cut_push(gp, gs, t, force, gs[GS_APPLIED], gs[GS_REACH], event, breakage)
     else:
-        pct, reason = requested, NORMAL
-    decision[0] = quantise(levels, gp[G_CONT] != 0.0, pct)
-    decision[1] = reason
+        _ring_put(gs, int(gp[G_RECENT_AT]), int(gp[G_DEBOUNCE]), GS_R_N, GS_R_NEXT, t,
+                  force, gs[GS_APPLIED], gs[GS_REACH], event, breakage)
+    gs[GS_APPLIED] = applied
+    gs[GS_RAMP] = dec[DEC_PCT] if dec[DEC_SHAPED] != 0.0 else applied
+    gs[GS_BLOCK_F], gs[GS_BLOCK_EVENT], gs[GS_REACH] = math.nan, 0.0, -1.0
+
+
+@compiled
+def gate_close(gp: np.ndarray, gs: np.ndarray, cut: np.ndarray) -> None:
+    """OverrideGate.close: the session ends; the cut still open, if any, as an incomplete
+    record (every block of it, the last ones included)."""
+    if gs[GS_ENGAGED] != 0.0:
+        at, cap = int(gp[G_PENDING_AT]), int(gp[G_PENDING_CAP])
+        untapped = min(int(gp[G_DEBOUNCE]) - 1, int(gs[GS_P_N]))
+        for age in range(untapped - 1, -1, -1):
+            _cut_add(gp, gs, _ring_at(gs, at, cap, GS_P_NEXT, age))
+        _cut_record(gp, gs, False, False, cut)
+    gs[GS_ENGAGED] = 0.0
+
+
+@entry('void(float64[::1], float64[::1], float64, float64, float64[::1], float64[::1])')
+def gate_block(gp: Arr, gs: Arr, force: float, status: float, cut: Arr, started: Arr) -> None:
+    """:func:`gate_on_estimate` from Python (:class:`turning_force.core.pmc.OverrideGate`);
+    started[0] 1 where a hold has just started."""
+    started[0] = 1.0 if gate_on_estimate(gp, gs, force, int(status), cut) else 0.0
+
+
+@entry('void(float64[::1], float64, float64, float64)')
+def gate_inputs_from_python(gs: Arr, program_enable: float, threading: float,
+                            dial: float) -> None:
+    """:func:`gate_inputs` from Python."""
+    gate_inputs(gs, program_enable, threading, dial)
+
+
+@entry('void(float64[::1], float64, float64, float64)')
+def gate_command_from_python(gs: Arr, requested: float, t: float, reachable: float) -> None:
+    """:func:`gate_on_command` from Python."""
+    gate_on_command(gs, requested, t, reachable)
+
+
+@entry('void(float64[::1], float64[::1], float64[::1], float64, float64[::1], int64)')
+def gate_step(gp: Arr, gs: Arr, levels: Arr, t: float, dec: Arr, answer: int) -> None:
+    """From Python: :func:`gate_answer` (``answer`` 1) or :func:`gate_decide`."""
+    if answer != 0:
+        gate_answer(gp, gs, levels, t, dec)
+    else:
+        gate_decide(gp, gs, levels, t, dec)
+
+
+@entry('void(float64[::1], float64[::1], float64, int64, float64[::1])')
+def gate_control(gp: Arr, gs: Arr, t: float, what: int, cut: Arr) -> None:
+    """From Python: arm at ``t`` (``what`` 0), start (1), close (2)."""
+    if what == 0:
+        gate_arm(gp, gs, t)
+    elif what == 1:
+        gs[GS_STARTED] = 1.0
+        if gp[G_ARMED] != 0.0:
+            gate_arm(gp, gs, t)
+    else:
+        gate_close(gp, gs, cut)
 
 
 # --- the core loop (core/simulate.py) -------------------------------------------------------
 
-@entry('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-      'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-      'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, '
-      'float64, float64[::1], float64[:, ::1])')
-def run_core(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_v: Arr,
-             noise_f: Arr, noise_fr: Arr, ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr,
-             gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int, applied: float, last: Arr,
-             trace: Arr) -> float:
-    """Blocks k0 .. k1 - 1 of the core loop (plant -> estimator -> gate.on_estimate ->
-    controller -> gate.on_command -> gate.decide), trace rows k0 .. k1 - 1; noise arrays start
-    at block k0. ``last`` is the command that stands (pct, sliding, reachable). Returns the
-    override applied to the next block."""
-    n = int(pp[P_N])
-    dt = pp[P_DT]
-    u, v = np.empty(n), np.empty(n)
-    angle, feed_rate = np.empty(n), np.empty(n)
-    work = np.empty(2 * n)
-    truth = np.empty((3, n))
-    out = np.empty(4)
-    decision = np.empty(2)
-    for k in range(k0, k1):
-        lo = (k - k0) * n
-        t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, noise_fr,
-                        lo, u, v, angle, feed_rate, truth)
-        t_end = t0 + n * dt
-        status = estimator_update(ep, es, t0, dt, u, v, angle, feed_rate, work)
-        force, rate = es[ES_F], es[ES_R]
-        gate_on_estimate(gp, gs, force, status)
-        if (status == OK or status == SATURATED) and math.isfinite(force):  # noqa: SIM109
-            controller_update(cp, cs, clevels, force, rate, out)
-            last[0], last[1], last[2] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
-            gs[GS_REQ], gs[GS_CMD_T] = out[OUT_PCT], t_end
-        gate_decide(gp, gs, glevels, t_end, decision)
-        row = k
-        trace[row, 0], trace[row, 1], trace[row, 2] = t_end, truth[0, n - 1], force
-        trace[row, 3], trace[row, 4], trace[row, 5] = rate, cp[C_REF], truth[1, n - 1]
-        trace[row, 6], trace[row, 7], trace[row, 8] = truth[2, n - 1], last[0], applied
-        trace[row, 9], trace[row, 10] = last[1], last[2]
-        applied = decision[0]
-    return applied
+@compiled
+def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
+               clevels: np.ndarray, gp: np.ndarray, gs: np.ndarray, glevels: np.ndarray,
+               t0: float, dt: float, u: np.ndarray, v: np.ndarray, angle: np.ndarray,
+               feed: np.ndarray, work: np.ndarray, inputs: np.ndarray, out: np.ndarray,
+               dec: np.ndarray, cut: np.ndarray, cuts: np.ndarray, ncuts: np.ndarray) -> bool:
+    """One block through the chain (:class:`turning_force.core.loop.ControlChain` states it):
+    the machine's inputs (PE, threading, dial) -> estimator -> gate.on_estimate -> controller
+    -> gate.on_command -> gate.answer (DEC_* into ``dec``); a learning cut that has just been
+    learned sets the controller's reference from the next block on; a cut that ended goes to
+    ``cuts`` (row ncuts[0], while there is room; ncuts[0] counts them all). Returns whether
+    the controller acted (``out`` its command)."""
+    t_end = t0 + u.size * dt
+    gate_inputs(gs, inputs[0], inputs[1], inputs[2])
+    status = estimator_update(ep, es, t0, dt, u, v, angle, feed, work)
+    force, rate = es[ES_F], es[ES_R]
+    gate_on_estimate(gp, gs, force, status, cut)
+    acted = (status == OK or status == SATURATED) and math.isfinite(force)  # noqa: SIM109
+    if acted:
+        controller_update(cp, cs, clevels, force, rate, out)
+        gate_on_command(gs, out[OUT_PCT], t_end, out[OUT_REACH])
+    gate_answer(gp, gs, glevels, t_end, dec)
+    if gs[GS_LEARNED] != 0.0:
+        gs[GS_LEARNED] = 0.0
+        if gs[GS_L_REFUSED] == LEARN_OK:
+            cp[C_REF] = gs[GS_L_LEVEL] * gp[G_TEACH_FRACTION]
+    if cut[CUT_READY] != 0.0:
+        cut[CUT_READY] = 0.0
+        i = int(ncuts[0])
+        if i < cuts.shape[0]:
+            for j in range(CUT_FIELDS):
+                cuts[i, j] = cut[j]
+        ncuts[0] = i + 1
+    return acted
 
 
 @compiled
-def _chain_row(rows: np.ndarray, k: int, es: np.ndarray, status: int, acted: bool,
-               out: np.ndarray, cp: np.ndarray, gp: np.ndarray, gs: np.ndarray,
-               decision: np.ndarray) -> None:
+def _trace_row(trace: np.ndarray, k: int, t_end: float, truth: np.ndarray, n: int,
+               es: np.ndarray, cp: np.ndarray, last: np.ndarray, applied: float) -> None:
+    """Row k of the core loop's trace (core/simulate.py TRACE_NAMES)."""
+    trace[k, 0], trace[k, 1], trace[k, 2] = t_end, truth[0, n - 1], es[ES_F]
+    trace[k, 3], trace[k, 4], trace[k, 5] = es[ES_R], cp[C_REF], truth[1, n - 1]
+    trace[k, 6], trace[k, 7], trace[k, 8] = truth[2, n - 1], last[0], applied
+    trace[k, 9], trace[k, 10] = last[1], last[2]
+
+
+@compiled
+def _chain_row(rows: np.ndarray, k: int, es: np.ndarray, acted: bool, out: np.ndarray,
+               cp: np.ndarray, gs: np.ndarray, dec: np.ndarray) -> None:
     """Row k of the chain's rows (CH_*): the estimate, the command (where ``acted``), the
     decision and the gate's outputs."""
     rows[k, CH_FORCE], rows[k, CH_RATE] = es[ES_F], es[ES_R]
-    rows[k, CH_IQ], rows[k, CH_IFR], rows[k, CH_STATUS] = es[ES_IQ], es[ES_IFR], status
+    rows[k, CH_IQ], rows[k, CH_IFR], rows[k, CH_STATUS] = es[ES_IQ], es[ES_IFR], es[ES_STATUS]
     rows[k, CH_ACTED] = 1.0 if acted else 0.0
     rows[k, CH_REQ], rows[k, CH_S], rows[k, CH_REACH] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
     rows[k, CH_ERR] = out[OUT_ERR]
     rows[k, CH_DCODE], rows[k, CH_DVAL], rows[k, CH_DVAL + 1] = (es[ES_DCODE], es[ES_DVAL],
                                                                  es[ES_DVAL + 1])
     rows[k, CH_REF] = cp[C_REF]
-    rows[k, CH_APPLIED], rows[k, CH_REASON] = decision[0], decision[1]
+    rows[k, CH_APPLIED], rows[k, CH_REASON] = dec[DEC_APPLIED], dec[DEC_REASON]
     rows[k, CH_ARMED], rows[k, CH_GATE_REQ] = gs[GS_ARMED], gs[GS_REQ]
-    rows[k, CH_ENGAGED] = gs[GS_ENGAGED]
-    rows[k, CH_ALARM] = 1.0 if gs[GS_REACTED] != 0.0 or gs[GS_HOLD] != 0.0 else 0.0
-    rows[k, CH_STOP] = 1.0 if gs[GS_REACTED] != 0.0 and gp[G_REACTION] == REACTION_STOP \
-        else 0.0
+    rows[k, CH_ENGAGED], rows[k, CH_ALARM], rows[k, CH_STOP] = (dec[DEC_ENGAGED],
+                                                                dec[DEC_ALARM], dec[DEC_STOP])
 
 
 @entry('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-      'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-      'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, '
-      'float64, float64[::1], float64[:, ::1], float64[::1], float64[:, ::1], float64[:, ::1], '
-      'float64[:, ::1], float64[:, ::1], float64[:, ::1])')
+       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
+       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, '
+       'float64, float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], '
+       'float64[::1])')
+def run_core(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_v: Arr,
+             noise_f: Arr, noise_fr: Arr, ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr,
+             gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int, applied: float, last: Arr,
+             trace: Arr, inputs: Arr, cuts: Arr, ncuts: Arr) -> float:
+    """Blocks k0 .. k1 - 1 of the core loop: the plant, then :func:`chain_step`; trace rows
+    k0 .. k1 - 1; noise arrays start at block k0, ``inputs`` (n, 3) at block 0. ``last`` is
+    the command that stands (pct, sliding, reachable). Returns the override applied to the
+    next block."""
+    n = int(pp[P_N])
+    dt = pp[P_DT]
+    u, v = np.empty(n), np.empty(n)
+    angle, feed_rate = np.empty(n), np.empty(n)
+    work = np.empty(2 * n)
+    truth = np.empty((3, n))
+    out = np.full(4, math.nan)
+    dec = np.empty(DEC_FIELDS)
+    cut = np.zeros(CUT_FIELDS)
+    for k in range(k0, k1):
+        lo = (k - k0) * n
+        t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, noise_fr,
+                        lo, u, v, angle, feed_rate, truth)
+        if chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, t0, dt, u, v, angle,
+                      feed_rate, work, inputs[k], out, dec, cut, cuts, ncuts):
+            last[0], last[1], last[2] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
+        _trace_row(trace, k, t0 + n * dt, truth, n, es, cp, last, applied)
+        applied = dec[DEC_APPLIED]
+    return applied
+
+
+@entry('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
+       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
+       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, '
+       'float64, float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], '
+       'float64[::1], float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], '
+       'float64[:, ::1], float64[:, ::1])')
 def run_core_kept(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_v: Arr,
                   noise_f: Arr, noise_fr: Arr, ep: Arr, es: Arr, cp: Arr, cs: Arr,
                   clevels: Arr, gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int,
-                  applied: float, last: Arr, trace: Arr, t0s: Arr, u: Arr, v: Arr, angle: Arr,
-                  feed_rate: Arr, rows: Arr) -> float:
+                  applied: float, last: Arr, trace: Arr, inputs: Arr, cuts: Arr, ncuts: Arr,
+                  t0s: Arr, u: Arr, v: Arr, angle: Arr, feed_rate: Arr, rows: Arr) -> float:
     """:func:`run_core`, keeping every block: its first stamp into t0s[k], its samples into
     row k of u, v, angle and feed_rate, the chain's row (CH_*) into rows[k]."""
     n = int(pp[P_N])
@@ -1225,49 +1710,43 @@ def run_core_kept(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise
     work = np.empty(2 * n)
     truth = np.empty((3, n))
     out = np.full(4, math.nan)
-    decision = np.empty(2)
+    dec = np.empty(DEC_FIELDS)
+    cut = np.zeros(CUT_FIELDS)
     for k in range(k0, k1):
         lo = (k - k0) * n
         uk, vk, ak, fk = u[k], v[k], angle[k], feed_rate[k]
         t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, noise_fr,
                         lo, uk, vk, ak, fk, truth)
         t0s[k] = t0
-        t_end = t0 + n * dt
-        status = estimator_update(ep, es, t0, dt, uk, vk, ak, fk, work)
-        force, rate = es[ES_F], es[ES_R]
-        gate_observe(gp, gs, force, status)
-        acted = (status == OK or status == SATURATED) and math.isfinite(force)  # noqa: SIM109
+        acted = chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, t0, dt, uk, vk, ak, fk,
+                           work, inputs[k], out, dec, cut, cuts, ncuts)
         if acted:
-            controller_update(cp, cs, clevels, force, rate, out)
             last[0], last[1], last[2] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
-            gs[GS_REQ], gs[GS_CMD_T] = out[OUT_PCT], t_end
-        gate_decide(gp, gs, glevels, t_end, decision)
-        _chain_row(rows, k, es, status, acted, out, cp, gp, gs, decision)
-        trace[k, 0], trace[k, 1], trace[k, 2] = t_end, truth[0, n - 1], force
-        trace[k, 3], trace[k, 4], trace[k, 5] = rate, cp[C_REF], truth[1, n - 1]
-        trace[k, 6], trace[k, 7], trace[k, 8] = truth[2, n - 1], last[0], applied
-        trace[k, 9], trace[k, 10] = last[1], last[2]
-        applied = decision[0]
+        _chain_row(rows, k, es, acted, out, cp, gs, dec)
+        _trace_row(trace, k, t0 + n * dt, truth, n, es, cp, last, applied)
+        applied = dec[DEC_APPLIED]
     return applied
 
 
 @entry('int64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-      'float64[::1], float64[::1], float64[::1], float64[::1], float64, float64[:, ::1], '
-      'float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], int64, '
-      'float64[:, ::1])')
+       'float64[::1], float64[::1], float64[::1], float64[::1], float64, float64[:, ::1], '
+       'float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], int64, '
+       'float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[::1])')
 def replay_blocks(ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr, gp: Arr, gs: Arr,
                   glevels: Arr, t0s: Arr, dt: float, u: Arr, v: Arr, angle: Arr, feed: Arr,
-                  arm_times: Arr, arm_states: Arr, change: int, rows: Arr) -> int:
-    """Replay (session/replay.py): blocks of recorded currents (n, m) through estimator ->
-    gate.on_estimate -> controller -> gate.on_command -> gate.decide, open loop, each decision
-    at the block's end; before each block, the gate armed (at the change's time) or disarmed
-    for every change (arm_times, arm_states 1/0, in order, from index ``change`` on) up to the
-    block's end. The chain's rows (CH_*) into rows; returns the index of the first change not
-    made (where the next stretch of blocks goes on)."""
+                  arm_times: Arr, arm_states: Arr, change: int, rows: Arr, inputs: Arr,
+                  cuts: Arr, ncuts: Arr) -> int:
+    """Replay (session/replay.py): blocks of recorded currents (n, m) through
+    :func:`chain_step`, open loop, each decision at the block's end, with the machine's
+    recorded inputs (n, 3); before each block, the gate armed (at the change's time) or
+    disarmed for every change (arm_times, arm_states 1/0, in order, from index ``change`` on)
+    up to the block's end. The chain's rows (CH_*) into rows; returns the index of the first
+    change not made (where the next stretch of blocks goes on)."""
     n, m = u.shape
     work = np.empty(2 * m)
     out = np.full(4, math.nan)
-    decision = np.empty(2)
+    dec = np.empty(DEC_FIELDS)
+    cut = np.zeros(CUT_FIELDS)
     for k in range(n):
         t0 = t0s[k]
         t_end = t0 + m * dt
@@ -1277,15 +1756,9 @@ def replay_blocks(ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr, gp: Arr, gs:
             elif arm_states[change] == 0.0 and gs[GS_ARMED] != 0.0:
                 gs[GS_ARMED] = 0.0
             change += 1
-        status = estimator_update(ep, es, t0, dt, u[k], v[k], angle[k], feed[k], work)
-        force, rate = es[ES_F], es[ES_R]
-        gate_observe(gp, gs, force, status)
-        acted = (status == OK or status == SATURATED) and math.isfinite(force)  # noqa: SIM109
-        if acted:
-            controller_update(cp, cs, clevels, force, rate, out)
-            gs[GS_REQ], gs[GS_CMD_T] = out[OUT_PCT], t_end
-        gate_decide(gp, gs, glevels, t_end, decision)
-        _chain_row(rows, k, es, status, acted, out, cp, gp, gs, decision)
+        acted = chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, t0, dt, u[k], v[k],
+                           angle[k], feed[k], work, inputs[k], out, dec, cut, cuts, ncuts)
+        _chain_row(rows, k, es, acted, out, cp, gs, dec)
     return change
 
 
