@@ -16,12 +16,15 @@ Rows (Park 1998 Fig. 8 throughout; min / median of ``--runs`` runs where a row r
    old report read the session that way, and drew every point, so its time was more);
 5. peak resident memory reading it back (the child's ``ru_maxrss``): old reader, new reader,
    report, replay;
-6. start-up to the first period: a one-period ``turning-force run --core --json`` in a fresh
+6. reading a 10-minute session (issue 14): our reader (scan + codec) beside the libraries alone
+   (mcap's reader, rosbags' CDR per message, the currents stacked): ours is kept where it is
+   at least 10x faster;
+7. start-up to the first period: a one-period ``turning-force run --core --json`` in a fresh
    process, and the import time of the command;
-7. sweeps: 100 and 10,000 points of a fig8 grid through ``commands.sweep`` on all cores;
+8. sweeps: 100 and 10,000 points of a fig8 grid through ``commands.sweep`` on all cores;
    old: ``turning-force run --core`` once per point (3 measured, scaled) and the Python API
    serially (``with_sets`` + ``simulate``, 200 measured, scaled);
-8. the real-time graph's block-to-override latency as lathe_sim publishes it on
+9. the real-time graph's block-to-override latency as lathe_sim publishes it on
    ``/diagnostics`` (``bench_realtime.measure``): one process, five processes (as ``ros2 run``
    starts them), and both under SCHED_FIFO where the machine grants it; the old one-process
    path on the SingleThreadedExecutor beside them.
@@ -43,6 +46,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -178,6 +183,43 @@ def old_chain_seconds(bag: Path) -> float:
     return (time.perf_counter() - start) * n / OLD_REPLAY_BLOCKS
 
 
+def libraries_read_s(bag: Path) -> float:
+    """Reading a session with the libraries alone (issue 14): mcap's reader, rosbags' CDR per
+    message, the currents stacked into arrays."""
+    from mcap.reader import make_reader
+
+    from turning_force.session.bag import typestore
+
+    start = time.perf_counter()
+    store = typestore()
+    currents = []
+    with next(bag.glob('*.mcap')).open('rb') as stream:
+        for schema, channel, message in make_reader(stream).iter_messages():
+            msg = store.deserialize_cdr(message.data, schema.name)
+            if channel.topic.endswith('servo/currents'):
+                currents.append(msg)
+    for name in ('phase_u_a', 'phase_v_a', 'rotor_angle_rad', 'feed_rate_mm_min'):
+        np.stack([np.asarray(getattr(m, name)) for m in currents])
+    return time.perf_counter() - start
+
+
+def session_reading(folder: Path, runs: int) -> None:
+    """Our session reader (scan + codec) beside mcap + rosbags on a 10-minute session: ours is
+    kept where it is at least 10x faster (issue 14)."""
+    from turning_force.session.reader import read_session
+
+    bag = folder / 'ten_minutes'
+    if not bag.exists():
+        subprocess.run([COMMAND, 'run', str(FIG8), '--core', '--out', str(bag), '--set',
+                        'experiment.duration_s=600'], check=True, capture_output=True)
+    ours = times(lambda: read_session(bag), runs)
+    libraries = [libraries_read_s(bag)]
+    ratio = libraries[0] / statistics.median(ours)
+    add('read a 10-minute session (60,000 blocks) [s]', f'{span(libraries, ".2f")} '
+        '(mcap + rosbags)', f'{span(ours, ".2f")} (our scan + codec)', f'{ratio:.0f}x',
+        f'>= 10x to keep ours: {met(ratio >= 10)}')
+
+
 def startup(runs: int) -> None:
     argv = [COMMAND, 'run', '--core', '--json', str(FIG8), '--set', 'experiment.duration_s=0.01']
     subprocess.run(argv, check=True, capture_output=True)   # the page cache warm
@@ -268,6 +310,7 @@ def main() -> int:
     folder = Path(args.keep or tempfile.mkdtemp(prefix='bench_table_'))
     folder.mkdir(parents=True, exist_ok=True)
     hour_session(folder, args.runs)
+    session_reading(folder, args.runs)
     startup(max(args.runs, 5))
     sweeps()
     realtime(args.realtime_s, args.warmup_s)
