@@ -13,6 +13,7 @@ from __future__ import annotations
 import sys
 import tempfile
 from pathlib import Path
+from types import ModuleType
 
 ROOT = Path(__file__).resolve().parents[2]
 FIG8 = ROOT / 'config' / 'experiments' / 'park1998_fig8.yaml'
@@ -24,20 +25,31 @@ class Reached(Exception):
     """The probe was called."""
 
 
-def main() -> None:
-    path, functions = sys.argv[1], sys.argv[2:]
+def bound(function: str) -> list[tuple[ModuleType, object]]:
+    """Every module of the package that binds the compiled function ``function`` (its own, and
+    those that import it), with the function: a compiled caller looks it up in its module."""
     from turning_force.core import kernel
 
-    jit = kernel.load()
+    kernel.load()
+    places = [(module, vars(module)[function]) for name, module in list(sys.modules.items())
+              if name.startswith('turning_force.') and function in vars(module)]
+    assert places, function
+    original = places[0][1]
+    assert all(value is original for _, value in places), function
+    return places
+
+
+def main() -> None:
+    path, functions = sys.argv[1], sys.argv[2:]
     for spec in functions:
         function, _, law = spec.partition('@')
-        original = getattr(jit, function)
-        assert callable(original), function
+        places = bound(function)
 
         def probe(*args: object, name: str = function) -> None:
             raise Reached(name)
 
-        setattr(jit, function, probe)
+        for module, _ in places:
+            setattr(module, function, probe)
         try:
             run(path, function, law)
         except Reached:
@@ -45,7 +57,8 @@ def main() -> None:
         else:
             print(f'not reached: {spec} on {path}', flush=True)
         finally:
-            setattr(jit, function, original)
+            for module, original in places:
+                setattr(module, function, original)
 
 
 def run(path: str, function: str, law: str) -> None:

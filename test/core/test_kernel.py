@@ -30,17 +30,25 @@ def test_compiled_runs_are_deterministic():
 
 def test_every_compiled_source_keys_the_cache(monkeypatch):
     # numba checks only a function's own file when it reads its cache: the folder's name
-    # changes with any source of compiled code, so that a change never meets old machine code.
+    # changes with any source of the core, so that a change never meets old machine code.
+    from turning_force.core import compiled
+
     before = kernel.cache_dir()
     original = Path.read_bytes
 
     def edited(path: Path) -> bytes:
         data = original(path)
-        return data + b'# edited' if path.name in kernel.SOURCES else data
+        return data + b'# edited' if path.name == 'pmc.py' else data
 
     monkeypatch.setattr(Path, 'read_bytes', edited)
-    assert kernel.cache_dir() != before
-    assert kernel.cache_dir().parent == before.parent
+    compiled.source_hash.cache_clear()
+    try:
+        assert kernel.cache_dir() != before
+        assert kernel.cache_dir().parent == before.parent
+    finally:
+        monkeypatch.undo()
+        compiled.source_hash.cache_clear()
+    assert kernel.cache_dir() == before
 
 
 def test_a_loaded_kernel_leaves_the_cache_warm_outside_the_package(monkeypatch, tmp_path):

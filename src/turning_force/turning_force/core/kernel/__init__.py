@@ -17,15 +17,14 @@ blocks at once. The same functions run as plain Python under numba's own switch
 from __future__ import annotations
 
 import contextlib
-import hashlib
-import os
 import sys
 import threading
 import time
-from pathlib import Path
 from types import ModuleType
 
-__all__ = ['SOURCES', 'cache_dir', 'cache_is_warm', 'load', 'loaded']
+from turning_force.core.compiled import STAMP, cache_dir, cache_is_warm, source_hash
+
+__all__ = ['cache_dir', 'cache_is_warm', 'load', 'loaded']
 
 _lock = threading.Lock()
 _module: ModuleType | None = None
@@ -58,42 +57,6 @@ def load() -> ModuleType:
                 print(f'turning_force: kernel compiled in {time.perf_counter() - start:.0f} s',
                       file=sys.stderr, flush=True)
                 with contextlib.suppress(OSError):
-                    (where / STAMP).write_text(_source_hash() + '\n')
+                    (where / STAMP).write_text(source_hash() + '\n')
             _module = jit
     return _module
-
-
-STAMP = 'turning_force_kernel.sha256'
-# Every module that holds compiled code. numba checks only the file that defines a function
-# when it reads its cache, not the files of the functions it calls: the cache's folder is keyed
-# on all of them at once (cache_dir), so that a change to any one never pairs with old code.
-SOURCES = ('jit.py',)
-
-
-def _source_hash() -> str:
-    """The SHA-256 of every source of compiled code (:data:`SOURCES`) and of numba's version."""
-    import importlib.metadata
-
-    digest = hashlib.sha256(importlib.metadata.version('numba').encode())
-    for name in SOURCES:
-        digest.update(Path(__file__).with_name(name).read_bytes())
-    return digest.hexdigest()
-
-
-def cache_dir() -> Path:
-    """Where numba keeps the kernel's machine code: ``$NUMBA_CACHE_DIR`` (or the user's cache
-    folder, ``$XDG_CACHE_HOME`` or ``~/.cache``, under ``turning_force/numba``), in a folder
-    named for the sources' hash."""
-    base = os.environ.get('NUMBA_CACHE_DIR', '').strip()
-    if not base:
-        home = os.environ.get('XDG_CACHE_HOME', '').strip() or str(Path.home() / '.cache')
-        base = str(Path(home) / 'turning_force' / 'numba')
-    return Path(base) / _source_hash()[:20]
-
-
-def cache_is_warm() -> bool:
-    """Whether numba's on-disk cache holds the kernel for today's sources (a stamp :func:`load`
-    leaves beside numba's files): then loading it is an import, not a compilation. Costs a
-    hash of the sources, no numba."""
-    stamp = cache_dir() / STAMP
-    return stamp.is_file() and stamp.read_text().strip() == _source_hash()

@@ -19,35 +19,22 @@ cache (``cache=True``, in :func:`turning_force.core.kernel.cache_dir`) loads the
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import Any, TypeVar, cast
 
-import numba
 import numpy as np
-from numba import njit
 
-from turning_force.core.kernel import cache_dir
+from turning_force.core.compiled import (
+    Arr,
+    compiled,
+    entry,
+    isclose,
+    npsign,
+    pairwise_sum,
+    pymax,
+    pymin,
+    pymod,
+    quantise,
+)
 
-# Before any function below is decorated: numba keys its cache's place on this at decoration.
-numba.config.CACHE_DIR = str(cache_dir())   # type: ignore[attr-defined]
-
-_F = TypeVar('_F', bound=Callable[..., Any])
-Arr = np.ndarray   # float64, C-contiguous: what the entry points' signatures say
-
-
-def compiled(function: _F) -> _F:
-    """The one switchboard of numba's options: cached on disk, numpy's error model (a division
-    by zero gives IEEE infinities), the GIL released. Compiled at the first call from Python or
-    from another compiled function."""
-    return cast(_F, njit(cache=True, error_model='numpy', nogil=True)(function))
-
-
-def entry(signature: str) -> Callable[[_F], _F]:
-    """An entry point from Python: compiled for ``signature`` when this module is imported (or
-    loaded from the cache), so that no call from Python compiles on its way."""
-    def decorate(function: _F) -> _F:
-        return cast(_F, njit(signature, cache=True, error_model='numpy', nogil=True)(function))
-    return decorate
 _SQRT3 = math.sqrt(3.0)
 _TWO_PI = 2.0 * math.pi
 
@@ -192,134 +179,6 @@ CH_REF, CH_APPLIED, CH_REASON, CH_ARMED, CH_GATE_REQ, CH_ENGAGED, CH_ALARM = ran
 CH_STOP, CH_ERR, CH_DCODE, CH_DVAL = 16, 17, 18, 19   # the estimate's detail: code, 2 values
 CHAIN_COLUMNS = 21
 
-
-# --- Python's and numpy's scalar rules ------------------------------------------------------
-
-@compiled
-def pymax(a: float, b: float) -> float:
-    """Python's ``max(a, b)``: the first of equals."""
-    return b if b > a else a
-
-
-@compiled
-def pymin(a: float, b: float) -> float:
-    """Python's ``min(a, b)``."""
-    return b if b < a else a
-
-
-@compiled
-def pymod(a: float, b: float) -> float:
-    """Python's float ``%`` (and ``np.mod``): numba's ``%`` follows CPython's float_rem."""
-    return a % b
-
-
-@compiled
-def npsign(x: float) -> float:
-    if x > 0.0:
-        return 1.0
-    if x < 0.0:
-        return -1.0
-    if x == 0.0:
-        return 0.0
-    return x
-
-
-@compiled
-def isclose(a: float, b: float, rel_tol: float) -> bool:
-    """``math.isclose(a, b, rel_tol=rel_tol)``."""
-    if a == b:
-        return True
-    if math.isinf(a) or math.isinf(b):
-        return False
-    diff = abs(b - a)
-    return diff <= abs(rel_tol * b) or diff <= abs(rel_tol * a) or diff <= 0.0
-
-
-@compiled
-def _pairwise_leaf(a: np.ndarray, lo: int, n: int) -> float:
-    """numpy's pairwise sum of up to 128 values: eight running sums, then a tree."""
-    if n < 8:
-        res = 0.0
-        for i in range(n):
-            res += a[lo + i]
-        return res
-    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-    i = 8
-    while i < n - (n % 8):
-        r0 += a[lo + i]
-        r1 += a[lo + i + 1]
-        r2 += a[lo + i + 2]
-        r3 += a[lo + i + 3]
-        r4 += a[lo + i + 4]
-        r5 += a[lo + i + 5]
-        r6 += a[lo + i + 6]
-        r7 += a[lo + i + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[lo + i]
-        i += 1
-    return res
-
-
-@compiled
-def pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
-    """numpy's pairwise summation (``np.add.reduce``, and so ``np.mean``) of a[lo:lo+n]:
-    past 128 values, the halves (the first a multiple of 8) summed alike and added. The
-    recursion is unrolled on a stack: numba's cache does not keep recursive functions."""
-    if n <= 128:
-        return _pairwise_leaf(a, lo, n)
-    los = np.empty(64, np.int64)
-    ns = np.empty(64, np.int64)
-    stage = np.zeros(64, np.int64)
-    left = np.empty(64)
-    top = 0
-    los[0], ns[0] = lo, n
-    ret = 0.0
-    while True:
-        cl, cn = los[top], ns[top]
-        if cn <= 128:
-            ret = _pairwise_leaf(a, cl, cn)
-            top -= 1
-            continue
-        half = cn // 2
-        half -= half % 8
-        if stage[top] == 0:
-            stage[top] = 1
-            top += 1
-            los[top], ns[top], stage[top] = cl, half, 0
-        elif stage[top] == 1:
-            left[top] = ret
-            stage[top] = 2
-            top += 1
-            los[top], ns[top], stage[top] = cl + half, cn - half, 0
-        else:
-            ret = left[top] + ret
-            top -= 1
-            if top < 0:
-                return ret
-
-
-@compiled
-def quantise(levels: np.ndarray, continuous: bool, pct: float) -> float:
-    """OverrideTable.quantise on a finite request."""
-    x = pymin(pymax(pct, levels[0]), levels[levels.size - 1])
-    if continuous:
-        return x
-    lo_i, hi_i = 0, levels.size     # bisect_left
-    while lo_i < hi_i:
-        mid = (lo_i + hi_i) // 2
-        if levels[mid] < x:
-            lo_i = mid + 1
-        else:
-            hi_i = mid
-    upper = min(max(lo_i, 1), levels.size - 1)
-    lo, hi = levels[upper - 1], levels[upper]
-    return hi if hi - x < x - lo else lo
-
-
-# --- the feed drive (core/drive.py) ---------------------------------------------------------
 
 @compiled
 def friction_current(a: float, b: float, vmin: float, vmax: float, feed: float) -> float:
