@@ -30,11 +30,11 @@ from turning_force.core.estimation import EstimatorSettings
 from turning_force.core.experiment import Experiment
 from turning_force.core.loop import ChainStep, ControlChain
 from turning_force.core.overrides import OverrideTable, get_table
+from turning_force.core.pmc import CUT_FIELDS, cut_record
 from turning_force.core.shopfloor import CutRecord, InputValues
 from turning_force.core.simulate import CoreArrays, SimulationResult, run_loop
 
-__all__ = ['ChainTrace', 'CoreRun', 'CurrentArrays', 'InputArrays', 'cut_records', 'replay_chain',
-           'run_core']
+__all__ = ['ChainTrace', 'CoreRun', 'CurrentArrays', 'InputArrays', 'replay_chain', 'run_core']
 
 FloatArray = npt.NDArray[np.float64]
 Int8Array = npt.NDArray[np.int8]
@@ -265,18 +265,6 @@ class CoreRun:
     cuts: list[CutRecord] = field(default_factory=list)
 
 
-def cut_records(rows: FloatArray, tool: str) -> list[CutRecord]:
-    """The gate's cut records (``CUT_*`` rows of the compiled gate) as :class:`CutRecord`."""
-    jit = kernel.load()
-    return [CutRecord(
-        index=int(r[jit.CUT_INDEX]), tool=tool, start_s=float(r[jit.CUT_START]),
-        end_s=float(r[jit.CUT_END]), programmed_feed_s=float(r[jit.CUT_FEED_S]),
-        max_force_n=float(r[jit.CUT_MAXF]), mean_force_n=float(r[jit.CUT_MEANF]),
-        min_override_pct=float(r[jit.CUT_MINO]), overload_events=int(r[jit.CUT_EVENTS]),
-        breakage=bool(r[jit.CUT_BREAK]), reachable_fraction=float(r[jit.CUT_REACH]),
-        learned=bool(r[jit.CUT_LEARNED]), complete=bool(r[jit.CUT_COMPLETE])) for r in rows]
-
-
 # --- replay ---------------------------------------------------------------------------------
 
 def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[CurrentBlock],
@@ -376,7 +364,7 @@ def _replay_compiled(chain: ControlChain, currents: CurrentArrays,
     t0, u, v = _c(currents.t0_s), _c(currents.phase_u_a), _c(currents.phase_v_a)
     angle, feed = _c(currents.rotor_angle_rad), _c(currents.feed_rate_mm_min)
     inputs = _inputs_matrix(seen, n)
-    cuts, ncuts = np.zeros((n // 2 + 1, jit.CUT_FIELDS)), np.zeros(1)
+    cuts, ncuts = np.zeros((n // 2 + 1, CUT_FIELDS)), np.zeros(1)
     change = 0
     for start in range(0, n, REPLAY_CHUNK_BLOCKS):
         end = min(start + REPLAY_CHUNK_BLOCKS, n)
@@ -488,5 +476,5 @@ def run_core(experiment: Experiment) -> CoreRun:
         'spindle_speed_rpm': np.full(n, plant_settings.spindle_speed_rpm),
         'specific_cutting_force_n_mm2': np.full(n, plant_settings.specific_cutting_force_n_mm2),
     }
-    cuts = cut_records(result.cut_rows, experiment.bridge.tool)
+    cuts = [cut_record(row, experiment.bridge.tool) for row in result.cut_rows]
     return CoreRun(result, currents, chain, plant, cuts)

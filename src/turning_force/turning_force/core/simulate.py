@@ -26,6 +26,7 @@ from turning_force.core.loop import ControlChain
 from turning_force.core.metrics import compute_metrics
 from turning_force.core.overrides import get_table
 from turning_force.core.plant import LathePlant
+from turning_force.core.pmc import CUT_FIELDS
 
 __all__ = ['CoreArrays', 'SimulationResult', 'simulate']
 
@@ -94,7 +95,7 @@ def run_loop(experiment: Experiment, kept: CoreArrays | None = None) -> Simulati
     ep, es, cp, cs, clevels, gp, gs, glevels = chain.arrays(dt)
     t_end = (np.arange(steps) * n).astype(np.float64) * dt + n * dt
     inputs = np.ascontiguousarray(experiment.plant.inputs_array(t_end))
-    cuts = np.zeros((steps // 2 + 1, jit.CUT_FIELDS))
+    cuts = np.zeros((steps // 2 + 1, CUT_FIELDS))
     ncuts = np.zeros(1)
     last = np.array([applied, 0.0, 1.0])
     for start in range(0, steps, CHUNK_BLOCKS):
