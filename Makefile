@@ -15,7 +15,8 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
 .PHONY: setup run test test-all lint reproduce bench bench-all clean
 
-KERNEL  := src/turning_force/turning_force/core/kernel/jit.py
+# The compiled code's cache is keyed on every source of the core (core/codecache.py).
+KERNEL  := $(shell find src/turning_force/turning_force/core -name '*.py')
 
 setup: $(STAMPS)/package $(STAMPS)/kernel
 
@@ -42,8 +43,8 @@ $(STAMPS)/package: $(STAMPS)/msgs src/turning_force/pyproject.toml
 	$(PY) -m pip install --quiet --no-build-isolation --no-deps -e src/turning_force
 	@touch $@
 
-# The compiled kernel into numba's on-disk cache (about a minute, once per change of jit.py), so
-# that no run and no node compiles it on its control path.
+# The compiled code into numba's cache in the user's cache folder (15-60 s, once per change of
+# the core), so that no run and no node compiles it on its control path.
 $(STAMPS)/kernel: $(STAMPS)/package $(KERNEL)
 	$(PY) -c 'from turning_force.core import kernel; kernel.load()'
 	@touch $@

@@ -31,7 +31,7 @@ def test_compiled_runs_are_deterministic():
 def test_every_compiled_source_keys_the_cache(monkeypatch):
     # numba checks only a function's own file when it reads its cache: the folder's name
     # changes with any source of the core, so that a change never meets old machine code.
-    from turning_force.core import compiled
+    from turning_force.core import codecache
 
     before = kernel.cache_dir()
     original = Path.read_bytes
@@ -41,13 +41,13 @@ def test_every_compiled_source_keys_the_cache(monkeypatch):
         return data + b'# edited' if path.name == 'pmc.py' else data
 
     monkeypatch.setattr(Path, 'read_bytes', edited)
-    compiled.source_hash.cache_clear()
+    codecache.source_hash.cache_clear()
     try:
         assert kernel.cache_dir() != before
         assert kernel.cache_dir().parent == before.parent
     finally:
         monkeypatch.undo()
-        compiled.source_hash.cache_clear()
+        codecache.source_hash.cache_clear()
     assert kernel.cache_dir() == before
 
 

@@ -6,7 +6,8 @@ import pytest
 
 from turning_force.core.errors import ConfigError
 from turning_force.core.estimation import EstimateStatus
-from turning_force.core.pmc import BridgeSettings, OverrideGate, Reason
+from turning_force.core.gate import OverrideGate
+from turning_force.core.pmc import BridgeSettings, Reason
 
 
 def armed_gate(**changes):

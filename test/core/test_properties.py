@@ -15,8 +15,9 @@ from hypothesis import strategies as st
 
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.estimation import EstimateStatus, EstimatorSettings, ForceEstimator
+from turning_force.core.gate import OverrideGate
 from turning_force.core.overrides import TABLES
-from turning_force.core.pmc import BridgeSettings, OverrideGate, Reason
+from turning_force.core.pmc import BridgeSettings, Reason
 
 PROPERTY = settings(derandomize=True, max_examples=300, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])

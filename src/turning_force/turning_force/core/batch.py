@@ -28,9 +28,9 @@ from turning_force.core import kernel
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.estimation import EstimatorSettings
 from turning_force.core.experiment import Experiment
+from turning_force.core.gate import CUT_FIELDS, cut_record
 from turning_force.core.loop import ChainStep, ControlChain
 from turning_force.core.overrides import OverrideTable, get_table
-from turning_force.core.pmc import CUT_FIELDS, cut_record
 from turning_force.core.shopfloor import CutRecord, InputValues
 from turning_force.core.simulate import CoreArrays, SimulationResult, run_loop
 

@@ -22,11 +22,11 @@ import numpy.typing as npt
 from turning_force.core import kernel
 from turning_force.core.errors import NoCutError
 from turning_force.core.experiment import Experiment
+from turning_force.core.gate import CUT_FIELDS
 from turning_force.core.loop import ControlChain
 from turning_force.core.metrics import compute_metrics
 from turning_force.core.overrides import get_table
 from turning_force.core.plant import LathePlant
-from turning_force.core.pmc import CUT_FIELDS
 
 __all__ = ['CoreArrays', 'SimulationResult', 'simulate']
 

@@ -59,10 +59,11 @@ from turning_force_msgs.msg import (
 )
 
 from turning_force.core.errors import ConfigError, TurningForceError
+from turning_force.core.gate import OverrideGate
 from turning_force.core.loop import command_for_would_act
 from turning_force.core.machine import Machine, load_machine
 from turning_force.core.overrides import OverrideTable
-from turning_force.core.pmc import BridgeSettings, Decision, OverrideGate, Reason
+from turning_force.core.pmc import BridgeSettings, Decision, Reason
 from turning_force.core.shopfloor import (
     NO_INPUTS,
     InputValues,

@@ -22,7 +22,7 @@ import threading
 import time
 from types import ModuleType
 
-from turning_force.core.compiled import STAMP, cache_dir, cache_is_warm, source_hash
+from turning_force.core.codecache import STAMP, cache_dir, cache_is_warm, source_hash
 
 __all__ = ['cache_dir', 'cache_is_warm', 'load', 'loaded']
 

@@ -34,7 +34,7 @@ from turning_force.core.compiled import (
     pymod,
     quantise,
 )
-from turning_force.core.pmc import (
+from turning_force.core.gate import (
     CUT_FIELDS,
     CUT_READY,
     DEC_ALARM,

@@ -1,0 +1,48 @@
+"""Where numba keeps the compiled code's machine code, without importing numba.
+
+``$NUMBA_CACHE_DIR`` (or the user's cache folder, ``$XDG_CACHE_HOME`` or ``~/.cache``, under
+``turning_force/numba``), in a folder named for the hash of every source of
+``turning_force.core`` and numba's version. numba checks only the file that defines a function
+when it reads its cache, not the files of the functions it calls: a folder per version of the
+whole core means a change anywhere never pairs with old machine code, and nothing is ever
+written into the installed package.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import importlib.metadata
+import os
+from pathlib import Path
+
+__all__ = ['STAMP', 'cache_dir', 'cache_is_warm', 'source_hash']
+
+STAMP = 'turning_force_kernel.sha256'
+CORE = Path(__file__).resolve().parent
+
+
+@functools.cache
+def source_hash() -> str:
+    """The SHA-256 of numba's version and every source of ``turning_force.core``."""
+    digest = hashlib.sha256(importlib.metadata.version('numba').encode())
+    for path in sorted(CORE.rglob('*.py')):
+        digest.update(path.relative_to(CORE).as_posix().encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def cache_dir() -> Path:
+    """Where numba keeps the compiled code's machine code (see the module's text)."""
+    base = os.environ.get('NUMBA_CACHE_DIR', '').strip()
+    if not base:
+        home = os.environ.get('XDG_CACHE_HOME', '').strip() or str(Path.home() / '.cache')
+        base = str(Path(home) / 'turning_force' / 'numba')
+    return Path(base) / source_hash()[:20]
+
+
+def cache_is_warm() -> bool:
+    """Whether the cache holds the machine code of today's sources (a stamp
+    :func:`turning_force.core.kernel.load` leaves once it has compiled them)."""
+    stamp = cache_dir() / STAMP
+    return stamp.is_file() and stamp.read_text().strip() == source_hash()
