@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -28,11 +28,12 @@ from turning_force.core import kernel
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.estimation import EstimatorSettings
 from turning_force.core.experiment import Experiment
-from turning_force.core.gate import CUT_FIELDS, cut_record
-from turning_force.core.loop import ChainStep, ControlChain
 from turning_force.core.overrides import OverrideTable, get_table
 from turning_force.core.shopfloor import CutRecord, InputValues
-from turning_force.core.simulate import CoreArrays, SimulationResult, run_loop
+
+if TYPE_CHECKING:   # the compiled chain, imported where it runs: reading a session needs none
+    from turning_force.core.loop import ChainStep, ControlChain
+    from turning_force.core.simulate import SimulationResult
 
 __all__ = ['ChainTrace', 'CoreRun', 'CurrentArrays', 'InputArrays', 'replay_chain', 'run_core']
 
@@ -299,6 +300,8 @@ def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[Curr
                               progress)
     seen = (None if inputs is None else
             inputs if isinstance(inputs, InputArrays) else InputArrays.collect(inputs, n))
+    from turning_force.core.loop import ControlChain
+
     chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
                          reference_force_n=reference_force_n)
     trace = _replay_compiled(chain, arrays, arm_changes, seen, progress)
@@ -325,6 +328,8 @@ def _replay_blocks(experiment: Experiment, blocks: Callable[[int], CurrentBlock]
                    reference_force_n: float | None,
                    progress: Callable[[int, int], None] | None = None) -> ChainTrace:
     """:class:`ControlChain` block by block, for blocks no one array holds."""
+    from turning_force.core.loop import ControlChain
+
     chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
                          reference_force_n=reference_force_n)
     trace = ChainTrace._empty(n)
@@ -364,6 +369,8 @@ def _replay_compiled(chain: ControlChain, currents: CurrentArrays,
     t0, u, v = _c(currents.t0_s), _c(currents.phase_u_a), _c(currents.phase_v_a)
     angle, feed = _c(currents.rotor_angle_rad), _c(currents.feed_rate_mm_min)
     inputs = _inputs_matrix(seen, n)
+    from turning_force.core.gate import CUT_FIELDS
+
     cuts, ncuts = np.zeros((n // 2 + 1, CUT_FIELDS)), np.zeros(1)
     change = 0
     for start in range(0, n, REPLAY_CHUNK_BLOCKS):
@@ -450,6 +457,9 @@ def run_core(experiment: Experiment) -> CoreRun:
     sample the plant produced, the chain's estimate, command and decision for each block, and
     the plant's state at each block's end; ``result`` is what simulate gives, bit for bit (its
     ``realtime_factor`` aside)."""
+    from turning_force.core.gate import cut_record
+    from turning_force.core.simulate import CoreArrays, run_loop
+
     jit = kernel.load()
     plant_settings = experiment.plant
     n = round(experiment.run.duration_s / experiment.run.control_period_s)
