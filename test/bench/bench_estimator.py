@@ -13,9 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from turning_force.core.estimation import EstimatorSettings, ForceEstimator
+from turning_force.core.estimation import EstimatorSettings
+from turning_force.core.estimator import ForceEstimator
 from turning_force.core.experiment import load_experiment
-from turning_force.core.plant import LathePlant
+from turning_force.core.lathe import LathePlant
 from turning_force.core.simulate import simulate
 
 FIG8 = Path(__file__).resolve().parents[2] / 'config' / 'experiments' / 'park1998_fig8.yaml'

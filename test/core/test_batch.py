@@ -34,10 +34,10 @@ from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import NoCutError
 from turning_force.core.estimation import EstimateStatus
 from turning_force.core.experiment import Experiment, load_experiment
+from turning_force.core.lathe import LathePlant
 from turning_force.core.loop import ControlChain
 from turning_force.core.metrics import compute_metrics
 from turning_force.core.overrides import get_table
-from turning_force.core.plant import LathePlant
 from turning_force.core.pmc import Reason
 from turning_force.core.shopfloor import InputValues
 from turning_force.core.simulate import TRACE_NAMES, SimulationResult, simulate

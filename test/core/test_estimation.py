@@ -7,13 +7,10 @@ import numpy as np
 import pytest
 
 from turning_force.core.drive import CurrentBlock
-from turning_force.core.estimation import (
-    EstimateStatus,
-    EstimatorSettings,
-    ForceEstimator,
-    calibrate_friction,
-)
-from turning_force.core.plant import LathePlant, PlantSettings
+from turning_force.core.estimation import EstimateStatus, EstimatorSettings, calibrate_friction
+from turning_force.core.estimator import ForceEstimator
+from turning_force.core.lathe import LathePlant
+from turning_force.core.plant import PlantSettings
 
 FILTERS = ['lowpass', 'kalman']
 

@@ -189,7 +189,8 @@ def test_the_servo_model_is_the_plants_exactly(model, params):
     import scipy.linalg
 
     from turning_force.core.identify import _hold, servo_matrices, servo_response
-    from turning_force.core.plant import LathePlant, PlantSettings
+    from turning_force.core.lathe import LathePlant
+    from turning_force.core.plant import PlantSettings
 
     # The closed-form hold equals the matrix exponential.
     a, b = servo_matrices(model, params)

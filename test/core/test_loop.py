@@ -7,11 +7,12 @@ import math
 import numpy as np
 
 from turning_force.core.control import ControllerSettings, make_controller
-from turning_force.core.estimation import EstimateStatus, ForceEstimator
+from turning_force.core.estimation import EstimateStatus
+from turning_force.core.estimator import ForceEstimator
 from turning_force.core.experiment import load_experiment
 from turning_force.core.gate import OverrideGate
+from turning_force.core.lathe import LathePlant
 from turning_force.core.loop import ControlChain, command_for
-from turning_force.core.plant import LathePlant
 from turning_force.core.pmc import Reason
 from turning_force.core.simulate import simulate
 

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from turning_force.core.drive import clarke_park
-from turning_force.core.plant import DepthProfile, LathePlant, PlantSettings
+from turning_force.core.lathe import LathePlant
+from turning_force.core.plant import DepthProfile, PlantSettings
 
 QUIET = {'current_noise_a': 0.0}
 

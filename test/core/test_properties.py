@@ -14,7 +14,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from turning_force.core.drive import CurrentBlock
-from turning_force.core.estimation import EstimateStatus, EstimatorSettings, ForceEstimator
+from turning_force.core.estimation import EstimateStatus, EstimatorSettings
+from turning_force.core.estimator import ForceEstimator
 from turning_force.core.gate import OverrideGate
 from turning_force.core.overrides import TABLES
 from turning_force.core.pmc import BridgeSettings, Reason

@@ -13,9 +13,10 @@ import pytest
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import load_experiment
 from turning_force.core.gate import OverrideGate
+from turning_force.core.lathe import LathePlant
 from turning_force.core.loop import ControlChain
 from turning_force.core.overrides import get_table
-from turning_force.core.plant import LathePlant, PlantSettings
+from turning_force.core.plant import PlantSettings
 from turning_force.core.pmc import BridgeSettings, Reason
 from turning_force.core.shopfloor import (
     InputValues,

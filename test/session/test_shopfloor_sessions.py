@@ -13,8 +13,8 @@ import yaml
 
 from turning_force.commands.run import run_lockstep
 from turning_force.core.experiment import load_experiment
+from turning_force.core.lathe import LathePlant
 from turning_force.core.loop import ControlChain
-from turning_force.core.plant import LathePlant
 from turning_force.core.pmc import Reason
 from turning_force.session.reader import read_session, recorded_metrics
 from turning_force.session.replay import replay

@@ -23,7 +23,8 @@ import numpy as np
 
 from turning_force.core.experiment import Experiment, load_experiment
 from turning_force.core.identify import identify
-from turning_force.core.plant import LathePlant, PlantSettings
+from turning_force.core.lathe import LathePlant
+from turning_force.core.plant import PlantSettings
 from turning_force.core.record import record
 from turning_force.core.simulate import simulate
 

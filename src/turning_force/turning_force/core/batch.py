@@ -399,7 +399,7 @@ def _rows_into(jit: Any, rows: FloatArray, trace: ChainTrace, first: int,
     """The kernel's chain rows of blocks ``first`` .. ``first + len(rows) - 1`` into the
     trace's arrays (the inputs the decisions saw are not the kernel's business: the caller
     fills them); the estimate's details in the reference's words."""
-    from turning_force.core.estimation import detail_text, rezeroed_text
+    from turning_force.core.estimator import D_NONE, D_REZEROED, detail_text, rezeroed_text
 
     r = rows
     sl = slice(first, first + len(rows))
@@ -426,11 +426,11 @@ def _rows_into(jit: Any, rows: FloatArray, trace: ChainTrace, first: int,
     codes = r[:, jit.CH_DCODE]
     details = trace.estimate_detail
     # In air the friction re-zero's line is on nearly every block: its text needs no block.
-    rezeroed = np.flatnonzero(codes == jit.D_REZEROED)
+    rezeroed = np.flatnonzero(codes == D_REZEROED)
     for k, scale in zip((rezeroed + first).tolist(), r[rezeroed, jit.CH_DVAL].tolist(),
                         strict=True):
         details[k] = rezeroed_text(scale)
-    for k in np.flatnonzero((codes != jit.D_NONE) & (codes != jit.D_REZEROED)).tolist():
+    for k in np.flatnonzero((codes != D_NONE) & (codes != D_REZEROED)).tolist():
         row = r[k]
         details[first + k] = detail_text(
             settings, currents.block(first + k), int(row[jit.CH_DCODE]),

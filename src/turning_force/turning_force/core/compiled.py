@@ -14,6 +14,8 @@ installed package.
 from __future__ import annotations
 
 import math
+import sys
+import time
 from collections.abc import Callable
 from typing import Any, TypeVar, cast
 
@@ -21,13 +23,19 @@ import numba
 import numpy as np
 from numba import njit
 
-from turning_force.core.codecache import cache_dir
+from turning_force.core.codecache import cache_dir, cache_is_warm
 
 __all__ = ['Arr', 'compiled', 'entry', 'isclose', 'npsign', 'pairwise_sum', 'pymax', 'pymin',
            'pymod', 'quantise']
 
 # Before any function is decorated: numba keys its cache's place on this at decoration.
 numba.config.CACHE_DIR = str(cache_dir())   # type: ignore[attr-defined]
+# A cold cache: the modules that import this one compile their entry points as they are imported
+# (turning_force.core.kernel.load says when they are done).
+COMPILE_START_S = time.perf_counter()
+if not cache_is_warm():
+    print(f'turning_force: compiling the kernel into {cache_dir()} (once per install and '
+          'version: 15 to 60 s)', file=sys.stderr, flush=True)
 
 _F = TypeVar('_F', bound=Callable[..., Any])
 Arr = np.ndarray   # float64, C-contiguous: what the entry points' signatures say

@@ -35,7 +35,8 @@ from turning_force.core.control import (
 )
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import ConfigError
-from turning_force.core.estimation import EstimatorSettings, ForceEstimate, ForceEstimator
+from turning_force.core.estimation import EstimatorSettings, ForceEstimate
+from turning_force.core.estimator import ForceEstimator
 from turning_force.core.gate import OverrideGate
 from turning_force.core.pmc import BridgeSettings, Decision
 from turning_force.core.shopfloor import CutRecord, InputValues, Learned, taught_reference

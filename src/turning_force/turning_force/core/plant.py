@@ -10,26 +10,24 @@ Signal chain, sampled at the DAQ rate and stepped one control block at a time::
 The linear process of Park (``g = 1``, ``k = K_s``) and the power law of Hwang & Chen
 (``g = 0.95``, ``k = k_f``) are one model. Linear blocks are discretised exactly (zero-order hold)
 once and run as direct-form-II-transposed filters, their state carried from block to block.
-The arithmetic is written once, as a compiled function (``plant_step`` in
-:mod:`turning_force.core.kernel.jit`): :class:`LathePlant` and the compiled core loop both run
-it, so the simulator's numbers are the same on every path and every CPU.
+The arithmetic is written once, compiled, in :mod:`turning_force.core.lathe`
+(:class:`~turning_force.core.lathe.LathePlant` and the compiled core loop both run it); this
+module holds the plant's settings and what it gives.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from types import ModuleType
 
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core import kernel, lti, shared
+from turning_force.core import shared
 from turning_force.core.drive import CurrentBlock, FeedDriveSettings
 from turning_force.core.settings import setting
 from turning_force.core.shopfloor import NO_INPUTS, InputValues
 
-__all__ = ['DepthProfile', 'Dynamometer', 'LathePlant', 'PlantBlock', 'PlantSettings']
+__all__ = ['DepthProfile', 'Dynamometer', 'PlantBlock', 'PlantSettings']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -231,123 +229,3 @@ class Dynamometer:
         """The reading for a block whose true force samples are ``force_n`` [N]."""
         noise = float(self._rng.normal(0.0, self.noise_n)) if self.noise_n > 0 else 0.0
         return float(np.mean(force_n)) + noise
-
-
-class LathePlant:
-    """The simulated lathe, stepped one control block at a time.
-
-    At ``t = 0`` the axis is already feeding at the initial override (approach in air) and the
-    tool enters the workpiece: the force starts at zero and rises with the process lag.
-    Deterministic for given settings and seed.
-
-    The arithmetic is one compiled function, ``plant_step`` of the kernel (the closed loop runs
-    the same one on the arrays this object holds: :attr:`arrays`); this class draws the noise
-    from its own generator, in one fixed order per block, and wraps the samples.
-    """
-
-    def __init__(self, settings: PlantSettings, samples_per_block: int | None = None,
-                 initial_override_pct: float = 100.0) -> None:
-        self.settings = settings
-        self.samples_per_block = samples_per_block or settings.samples_per_block
-        self._dt = 1.0 / settings.sample_rate_hz
-        self._rng = np.random.default_rng(settings.seed)
-        self._params, self._state = _plant_arrays(kernel.load(), settings, self.samples_per_block,
-                                                  initial_override_pct)
-        profile = settings.depth_profile
-        self._times = np.asarray(profile.times_s, dtype=np.float64)
-        self._depths = np.asarray(profile.depth_mm, dtype=np.float64)
-
-    @property
-    def arrays(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """(parameters, state, depth times, depths): what ``plant_step`` reads and writes (the
-        state, live: a loop that steps them steps this plant)."""
-        return self._params, self._state, self._times, self._depths
-
-    @property
-    def position_mm(self) -> float:
-        """Feed-axis position at the end of the last block."""
-        return float(self._state[kernel.load().PS_POS])
-
-    def draw_noise(self, blocks: int) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """The noise of the next ``blocks`` blocks, as ``plant_step`` reads it (u's and v's
-        sensor noise, the force fluctuation, the feed reading's noise; each ``blocks x n`` long,
-        or empty where that noise is off). Per block, in this order: the force fluctuation,
-        u's and v's sensor noise, the feed reading's noise: a run gives the same numbers
-        whatever the stretches it draws them in."""
-        s, n, rng = self.settings, self.samples_per_block, self._rng
-        normals = [s.current_noise_a] * (2 if s.current_noise_a > 0 else 0)
-        if s.feed_noise_mm_min > 0:
-            normals.append(s.feed_noise_mm_min)
-        force = np.empty(0)
-        drawn = np.empty((blocks, len(normals), n))
-        if s.force_noise_fraction > 0:
-            force = np.empty((blocks, n))
-            for k in range(blocks):
-                force[k] = rng.uniform(-1.0, 1.0, n)
-                for j, sigma in enumerate(normals):
-                    drawn[k, j] = rng.normal(0.0, sigma, n)
-        elif normals and len(set(normals)) == 1:
-            drawn = rng.normal(0.0, normals[0], (blocks, len(normals), n))
-        else:
-            for k in range(blocks):
-                for j, sigma in enumerate(normals):
-                    drawn[k, j] = rng.normal(0.0, sigma, n)
-        empty = np.empty(0)
-        columns = [np.ascontiguousarray(drawn[:, j, :]).ravel() for j in range(len(normals))]
-        noise_u, noise_v = (columns[0], columns[1]) if s.current_noise_a > 0 else (empty, empty)
-        noise_fr = columns[-1] if s.feed_noise_mm_min > 0 else empty
-        return noise_u, noise_v, force.ravel(), noise_fr
-
-    def step(self, override_pct: float) -> PlantBlock:
-        """Apply ``override_pct`` for one block and return its samples."""
-        s, n = self.settings, self.samples_per_block
-        noise_u, noise_v, noise_f, noise_fr = self.draw_noise(1)
-        u, v, angle, feed_rate = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-        truth = np.empty((3, n))
-        t0 = kernel.load().plant_block(self._params, self._state, self._times, self._depths,
-                                   float(override_pct), noise_u, noise_v, noise_f, noise_fr, 0,
-                                   u, v, angle, feed_rate, truth)
-        block = CurrentBlock(float(t0), self._dt, u, v, angle, feed_rate)
-        inputs = s.inputs_at(block.t0_s + n * self._dt)
-        return PlantBlock(block, truth[0], truth[1], truth[2], override_pct, inputs)
-
-
-def _plant_arrays(jit: ModuleType, s: PlantSettings, samples_per_block: int,
-                  initial_override_pct: float) -> tuple[FloatArray, FloatArray]:
-    """The plant's parameters (``P_*``) and its state (``PS_*``) at the start: the servo in
-    steady state at the initial override, the PMC's queue full of it, no force."""
-    dt = 1.0 / s.sample_rate_hz
-    v0 = initial_override_pct / 100.0 * s.programmed_feed_rate_mm_min
-    if s.servo_model == 'first_order':
-        sb, sa = lti.zoh([1.0], [s.servo_time_constant_s, 1.0], dt)
-    else:
-        wn, xi = s.servo_natural_freq_rad_s, s.servo_damping
-        sb, sa = lti.zoh([wn**2], [1.0, 2 * xi * wn, wn**2], dt)
-    delay = round(s.pmc_dead_time_s / dt)
-    p = np.zeros(jit.P_SIZE)
-    p[jit.P_N], p[jit.P_DT] = samples_per_block, dt
-    p[jit.P_FEED_RATE], p[jit.P_RPM] = s.programmed_feed_rate_mm_min, s.spindle_speed_rpm
-    p[jit.P_K], p[jit.P_G] = s.specific_cutting_force_n_mm2, s.cutting_exponent
-    p[jit.P_NOISE], p[jit.P_FNOISE] = s.current_noise_a, s.force_noise_fraction
-    p[jit.P_FEED_NOISE] = s.feed_noise_mm_min
-    p[jit.P_FAULT_START], p[jit.P_FAULT_DUR] = s.sensor_fault_start_s, s.sensor_fault_duration_s
-    p[jit.P_ANGLE_C], p[jit.P_PITCH] = 2.0 * math.pi * s.pole_pairs, s.ball_screw_pitch_mm
-    f, m = s.friction, s.current_map
-    p[jit.P_FR_A], p[jit.P_FR_B] = f.a_a_per_mm_min2, f.b_a
-    p[jit.P_FR_MIN], p[jit.P_FR_MAX] = f.min_feed_mm_min, f.max_feed_mm_min
-    p[jit.P_MAP_OFF], p[jit.P_MAP_PER] = m.offset_a, m.per_force_a_n
-    p[jit.P_SERVO_LEN] = sa.size
-    p[jit.P_SB:jit.P_SB + sb.size], p[jit.P_SA:jit.P_SA + sa.size] = sb, sa
-    p[jit.P_DELAY] = delay
-    p[jit.P_LINEAR] = s.depth_interpolation == 'linear'
-    state = np.zeros(jit.PS_QUEUE + delay)
-    # The servo's steady state at v0: its output v0 for a constant input v0 (unit DC gain).
-    zi = lti.lfiltic(sb, sa, [v0] * sa.size, [v0 / float(np.sum(sb) / np.sum(sa))] * sb.size)
-    state[jit.PS_SZ:jit.PS_SZ + zi.size] = zi
-    state[jit.PS_QUEUE:] = v0
-    tau_c = s.cutting_time_constant_s
-    if tau_c > 0:
-        pb, pa = lti.zoh([1.0], [tau_c, 1.0], dt)
-        p[jit.P_PROCESS] = 1.0
-        p[jit.P_PB:jit.P_PB + 2], p[jit.P_PA:jit.P_PA + 2] = pb, pa
-    return p, state

@@ -18,9 +18,10 @@ from turning_force.core.drive import clarke_park
 from turning_force.core.estimation import EstimateStatus
 from turning_force.core.experiment import Experiment
 from turning_force.core.identify import Recording
+from turning_force.core.lathe import LathePlant
 from turning_force.core.loop import ControlChain
 from turning_force.core.overrides import get_table
-from turning_force.core.plant import Dynamometer, LathePlant, PlantSettings
+from turning_force.core.plant import Dynamometer, PlantSettings
 
 __all__ = ['CoreRecording', 'record']
 

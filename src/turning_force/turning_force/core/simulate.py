@@ -23,10 +23,10 @@ from turning_force.core import kernel
 from turning_force.core.errors import NoCutError
 from turning_force.core.experiment import Experiment
 from turning_force.core.gate import CUT_FIELDS
+from turning_force.core.lathe import LathePlant
 from turning_force.core.loop import ControlChain
 from turning_force.core.metrics import compute_metrics
 from turning_force.core.overrides import get_table
-from turning_force.core.plant import LathePlant
 
 __all__ = ['CoreArrays', 'SimulationResult', 'simulate']
 
@@ -91,7 +91,7 @@ def run_loop(experiment: Experiment, kept: CoreArrays | None = None) -> Simulati
     steps = round(experiment.run.duration_s / experiment.run.control_period_s)
     rows = np.empty((steps, len(TRACE_NAMES)))
     pp, ps, times, depths = plant.arrays
-    n, dt = plant.samples_per_block, float(pp[jit.P_DT])
+    n, dt = plant.samples_per_block, 1.0 / experiment.plant.sample_rate_hz
     ep, es, cp, cs, clevels, gp, gs, glevels = chain.arrays(dt)
     t_end = (np.arange(steps) * n).astype(np.float64) * dt + n * dt
     inputs = np.ascontiguousarray(experiment.plant.inputs_array(t_end))

@@ -19,7 +19,9 @@ from typing import Any
 from rclpy.node import Node
 from turning_force_msgs.msg import ForceEstimate, ServoCurrents
 
-from turning_force.core.estimation import EstimateStatus, EstimatorSettings, ForceEstimator
+from turning_force.core import kernel
+from turning_force.core.estimation import EstimateStatus, EstimatorSettings
+from turning_force.core.estimator import ForceEstimator
 from turning_force.nodes.convert import (
     estimate_to_msg,
     last_sample_ns,
@@ -41,6 +43,7 @@ class ForceEstimatorNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('force_estimator', **kwargs)
+        kernel.load()   # the compiled code, before the first block (compiled on a cold cache)
         self.parameters = SettingsParameters(self, EstimatorSettings, self._reconfigure)
         self.diagnostics = Diagnostics(self)
         self._estimator = self._make_estimator(self.parameters.current)

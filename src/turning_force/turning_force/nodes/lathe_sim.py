@@ -43,10 +43,12 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from turning_force_msgs.msg import CuttingState, FeedOverride, MachineInputs, ServoCurrents
 
+from turning_force.core import kernel
 from turning_force.core.errors import ConfigError, TurningForceError
+from turning_force.core.lathe import LathePlant
 from turning_force.core.machine import load_machine
 from turning_force.core.overrides import get_table
-from turning_force.core.plant import Dynamometer, LathePlant, PlantBlock, PlantSettings
+from turning_force.core.plant import Dynamometer, PlantBlock, PlantSettings
 from turning_force.nodes.convert import (
     block_to_servo_currents,
     inputs_to_msg,
@@ -71,6 +73,7 @@ class LatheSimNode(Node):
 
     def __init__(self, *, lockstep: bool = False, **kwargs: Any) -> None:
         super().__init__('lathe_sim', **kwargs)
+        kernel.load()   # the compiled code, before the first block (compiled on a cold cache)
         self.declare_parameter('publish_clock', False)
         self._publish_clock = bool(self.get_parameter('publish_clock').value)
         self.declare_parameter('latency_window_s', 10.0, ParameterDescriptor(

@@ -58,6 +58,7 @@ from turning_force_msgs.msg import (
     MachineInputs,
 )
 
+from turning_force.core import kernel
 from turning_force.core.errors import ConfigError, TurningForceError
 from turning_force.core.gate import OverrideGate
 from turning_force.core.loop import command_for_would_act
@@ -116,6 +117,7 @@ class PmcBridgeNode(LifecycleNode):
         """``autostart``: configure and activate now (true), wait for transitions (false), or
         as the ``autostart`` parameter says (``None``)."""
         super().__init__('pmc_bridge', **kwargs)
+        kernel.load()   # the compiled code, before the first block (compiled on a cold cache)
         self._time = NodeTime(self)   # the gate's clock, without a clock call per message
         # Set first: the context's cleanup may destroy a node whose parameters were refused.
         self.machine: Machine | None = None

@@ -45,17 +45,15 @@ def load() -> ModuleType:
         if _module is None:
             where = cache_dir()
             warm = cache_is_warm()
-            start = time.perf_counter()
-            if not warm:
-                print(f'turning_force: compiling the kernel into {where} (once per install and '
-                      'version: 15 to 60 s)', file=sys.stderr, flush=True)
             try:
+                from turning_force.core import compiled
                 from turning_force.core.kernel import jit
             except Exception as exc:   # a broken numba install: say so
                 raise RuntimeError(f'the compiled kernel did not load: {exc!r}') from exc
             if not warm:
-                print(f'turning_force: kernel compiled in {time.perf_counter() - start:.0f} s',
-                      file=sys.stderr, flush=True)
+                took = time.perf_counter() - compiled.COMPILE_START_S
+                print(f'turning_force: kernel compiled in {took:.0f} s', file=sys.stderr,
+                      flush=True)
                 with contextlib.suppress(OSError):
                     (where / STAMP).write_text(source_hash() + '\n')
             _module = jit

@@ -26,13 +26,21 @@ from turning_force.core.compiled import (
     Arr,
     compiled,
     entry,
-    isclose,
-    npsign,
-    pairwise_sum,
     pymax,
     pymin,
-    pymod,
     quantise,
+)
+from turning_force.core.estimator import (
+    ES_DCODE,
+    ES_DVAL,
+    ES_F,
+    ES_IFR,
+    ES_IQ,
+    ES_R,
+    ES_STATUS,
+    OK,
+    SATURATED,
+    estimator_update,
 )
 from turning_force.core.gate import (
     CUT_FIELDS,
@@ -56,43 +64,7 @@ from turning_force.core.gate import (
     gate_on_command,
     gate_on_estimate,
 )
-
-_SQRT3 = math.sqrt(3.0)
-_TWO_PI = 2.0 * math.pi
-
-# --- estimate status (EstimateStatus) ------------------------------------------------------
-OK, STALE, INVALID_INPUT, SATURATED = 0, 1, 2, 3
-
-# --- plant parameters -----------------------------------------------------------------------
-P_N, P_DT, P_FEED_RATE, P_RPM, P_K, P_G, P_PROCESS, P_NOISE, P_FNOISE = range(9)
-P_FAULT_START, P_FAULT_DUR, P_ANGLE_C, P_PITCH = range(9, 13)
-P_FR_A, P_FR_B, P_FR_MIN, P_FR_MAX, P_MAP_OFF, P_MAP_PER = range(13, 19)
-P_SERVO_LEN, P_SB, P_SA = 19, 20, 23          # b and a: 3 slots each
-P_PB, P_PA, P_DELAY, P_LINEAR, P_FEED_NOISE = 26, 28, 30, 31, 32
-P_SIZE = 33
-# plant state
-PS_POS, PS_K, PS_QIDX, PS_SZ, PS_PZ, PS_QUEUE = 0, 1, 2, 3, 5, 6
-
-# --- estimator parameters -------------------------------------------------------------------
-E_KIND, E_FR_A, E_FR_B, E_FR_MIN, E_FR_MAX, E_MAP_OFF, E_MAP_PER, E_RANGE = range(8)
-E_REZ_BELOW, E_REZ_AFTER, E_REZ_TAU, E_REZ_MAX, E_MAX_JUMP = range(8, 13)
-E_GAIN_DT, E_K0, E_K1, E_NSEC, E_DB0, E_DB1, E_DA1 = range(13, 20)
-E_SOS, E_SOS_ZI = 20, 44                      # 4 sections x 6, 4 sections x 2
-E_SIZE = 52
-KALMAN, LOWPASS = 0, 1
-# estimator state
-ES_ACTIVE, ES_DT, ES_LAST_T, ES_NEXT_T, ES_NRESYNC, ES_RESYNC = 0, 1, 2, 3, 4, 5   # 3 slots
-ES_SCALE, ES_AIR, ES_RESTARTS = 8, 9, 10
-ES_T, ES_F, ES_R, ES_IQ, ES_IFR, ES_STATUS = range(11, 17)
-ES_DCODE, ES_DVAL = 17, 18                    # detail code, 2 values
-ES_X = 20                                     # Kalman x (2) or low-pass zi (8) and dzi (1)
-ES_SIZE = 29
-# detail codes (ForceEstimator's one-line problems and notes)
-D_NONE, D_LENGTHS, D_DT_BAD, D_DT_CHANGED, D_NONFINITE, D_STAMP_NONFINITE = range(6)
-D_STAMP_NOT_AFTER, D_STAMP_JUMP, D_IMPLAUSIBLE, D_OVERFLOW, D_FILTER_OVERFLOW = range(6, 11)
-D_SATURATED, D_REZEROED = 11, 12
-RESYNC_BLOCKS = 3
-IMPLAUSIBLE_RANGE_FACTOR = 2.0
+from turning_force.core.lathe import P_DT, P_N, plant_step
 
 # --- controller parameters ------------------------------------------------------------------
 C_KIND, C_REF, C_PERIOD, C_MIN, C_MAX, C_GAP, C_EF, C_UNREACH, C_FEED_RATE = range(9)
@@ -140,305 +112,6 @@ CH_FORCE, CH_RATE, CH_IQ, CH_IFR, CH_STATUS, CH_ACTED, CH_REQ, CH_S, CH_REACH = 
 CH_REF, CH_APPLIED, CH_REASON, CH_ARMED, CH_GATE_REQ, CH_ENGAGED, CH_ALARM = range(9, 16)
 CH_STOP, CH_ERR, CH_DCODE, CH_DVAL = 16, 17, 18, 19   # the estimate's detail: code, 2 values
 CHAIN_COLUMNS = 21
-
-
-@compiled
-def friction_current(a: float, b: float, vmin: float, vmax: float, feed: float) -> float:
-    """FrictionModel.current_a at one feed rate (Park Eq. 25)."""
-    speed = abs(feed)
-    v = speed if speed >= vmin or speed != speed else vmin     # np.clip: max, then min
-    v = v if v <= vmax or v != v else vmax
-    d = v - vmin
-    quadratic = a * (d * d) + b
-    stick = speed / vmin
-    stick = stick if stick <= 1.0 or stick != stick else 1.0  # np.minimum(x, 1)
-    return npsign(feed) * stick * quadratic
-
-
-# --- the plant (core/plant.py LathePlant.step) ----------------------------------------------
-
-@compiled
-def depth_at(times: np.ndarray, depths: np.ndarray, linear: bool, t: float) -> float:
-    """DepthProfile.at: held steps (searchsorted right) or np.interp."""
-    m = times.size
-    if not linear:
-        index = 0
-        while index < m and times[index] <= t:
-            index += 1
-        index -= 1
-        return depths[min(max(index, 0), m - 1)]
-    if t < times[0]:
-        return depths[0]
-    if t >= times[m - 1]:
-        return depths[m - 1]
-    j = 0
-    while times[j + 1] <= t:
-        j += 1
-    slope = (depths[j + 1] - depths[j]) / (times[j + 1] - times[j])
-    out = slope * (t - times[j]) + depths[j]
-    if out != out:
-        out = slope * (t - times[j + 1]) + depths[j + 1]
-        if out != out and depths[j] == depths[j + 1]:
-            out = depths[j]
-    return out
-
-
-@compiled
-def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.ndarray,
-               override_pct: float, noise_u: np.ndarray, noise_v: np.ndarray,
-               noise_f: np.ndarray, noise_fr: np.ndarray, lo: int, u: np.ndarray,
-               v: np.ndarray, angle: np.ndarray, feed_rate: np.ndarray,
-               truth: np.ndarray) -> float:
-    """The lathe for one block at ``override_pct`` (the one source of the simulated plant:
-    :class:`turning_force.core.plant.LathePlant` steps it too).
-
-    override -> PMC dead time (a ring of ``P_DELAY`` samples) -> CNC servo (Park Eq. 2, first
-    order, or Hwang & Chen Eq. 1, second order; zero-order-hold coefficients in direct form II
-    transposed) -> feed [mm/rev] -> cutting force F = k d f^g through the process lag tau_c
-    (Park Eq. 1; Hwang & Chen Eq. 3) -> q-axis current (Park Eq. 26) plus friction (Park
-    Eq. 25) -> u, v phase currents at the rotor angle, plus sensor noise.
-
-    The DAQ's arrays into u, v, angle, feed_rate (the measured feed rate: ``noise_fr`` added
-    where ``P_FEED_NOISE``); the true force, depth and feed [mm/rev] of every sample into rows
-    0, 1 and 2 of ``truth`` (3, n); returns the block's t0. Noise samples are read from ``lo``
-    on (drawn in Python from the plant's own Generator)."""
-    n = int(pp[P_N])
-    dt = pp[P_DT]
-    k = int(ps[PS_K])
-    commanded = override_pct / 100.0 * pp[P_FEED_RATE]
-    delay = int(pp[P_DELAY])
-    order = int(pp[P_SERVO_LEN]) - 1
-    sb0, sb1, sb2 = pp[P_SB], pp[P_SB + 1], pp[P_SB + 2]
-    sa1, sa2 = pp[P_SA + 1], pp[P_SA + 2]
-    z0, z1 = ps[PS_SZ], ps[PS_SZ + 1]
-    pz = ps[PS_PZ]
-    pb0, pb1, pa1 = pp[P_PB], pp[P_PB + 1], pp[P_PA + 1]
-    cumulative = 0.0
-    position0 = ps[PS_POS]
-    fault_end = pp[P_FAULT_START] + pp[P_FAULT_DUR]
-    linear = pp[P_LINEAR] != 0.0
-    for i in range(n):
-        t = float(k + i) * dt
-        if delay > 0:
-            q = int(ps[PS_QIDX])
-            servo_in = ps[PS_QUEUE + q]
-            ps[PS_QUEUE + q] = commanded
-            ps[PS_QIDX] = (q + 1) % delay
-        else:
-            servo_in = commanded
-        # Direct form II transposed (scipy's lfilter), a[0] == 1.
-        if order == 1:
-            fr = z0 + sb0 * servo_in
-            z0 = sb1 * servo_in - sa1 * fr
-        else:
-            fr = z0 + sb0 * servo_in
-            z0 = z1 + sb1 * servo_in - sa1 * fr
-            z1 = sb2 * servo_in - sa2 * fr
-        cumulative = fr if i == 0 else cumulative + fr
-        position = position0 + cumulative * dt / 60.0
-        depth = depth_at(times, depths, linear, t)
-        feed = (fr if fr >= 0.0 or fr != fr else 0.0) / pp[P_RPM]
-        g = pp[P_G]
-        if g == 1.0:
-            powered = feed
-        elif g == 0.5:
-            powered = math.sqrt(feed)
-        elif g == 2.0:
-            powered = feed * feed
-        else:
-            powered = feed ** g
-        static = pp[P_K] * depth * powered
-        if pp[P_PROCESS] != 0.0:
-            force = pz + pb0 * static
-            pz = pb1 * static - pa1 * force
-        else:
-            force = static
-        felt = force
-        if pp[P_FNOISE] > 0.0:
-            felt = force * (1.0 + noise_f[lo + i] * pp[P_FNOISE])
-        current_q = (pp[P_MAP_OFF] + pp[P_MAP_PER] * felt) + friction_current(
-            pp[P_FR_A], pp[P_FR_B], pp[P_FR_MIN], pp[P_FR_MAX], fr)
-        theta = pymod(pp[P_ANGLE_C] * position / pp[P_PITCH], _TWO_PI)
-        cos, sin = math.cos(theta), math.sin(theta)
-        i_alpha = 0.0 * cos - current_q * sin
-        i_beta = 0.0 * sin + current_q * cos
-        pu = i_alpha
-        pv = (-i_alpha + _SQRT3 * i_beta) / 2.0
-        if pp[P_NOISE] > 0.0:
-            pu = pu + noise_u[lo + i]
-            pv = pv + noise_v[lo + i]
-        if pp[P_FAULT_DUR] > 0.0 and t >= pp[P_FAULT_START] and t < fault_end:
-            pu = math.nan
-            pv = math.nan
-        measured = fr + noise_fr[lo + i] if pp[P_FEED_NOISE] > 0.0 else fr
-        u[i], v[i], angle[i], feed_rate[i] = pu, pv, theta, measured
-        truth[0, i], truth[1, i], truth[2, i] = force, depth, feed
-    ps[PS_POS] = position
-    ps[PS_SZ], ps[PS_SZ + 1], ps[PS_PZ] = z0, z1, pz
-    ps[PS_K] = k + n
-    return float(k) * dt
-
-
-# --- the estimator (core/estimation.py ForceEstimator.update) -------------------------------
-
-@compiled
-def _invalid(es: np.ndarray, code: int, a: float, b: float) -> int:
-    if es[ES_ACTIVE] != 0.0:
-        es[ES_ACTIVE] = 0.0
-        es[ES_RESTARTS] += 1.0
-    es[ES_STATUS] = INVALID_INPUT
-    es[ES_DCODE], es[ES_DVAL], es[ES_DVAL + 1] = code, a, b
-    return INVALID_INPUT
-
-
-@compiled
-def _stamp_problem(ep: np.ndarray, es: np.ndarray, t0: float, dt: float, n: int) -> int:
-    """ForceEstimator._check_stamp: a detail code, or D_NONE (values in ES_DVAL)."""
-    if not math.isfinite(t0):
-        es[ES_DVAL] = t0
-        return D_STAMP_NONFINITE
-    last_t, next_t = es[ES_LAST_T], es[ES_NEXT_T]
-    if last_t == -math.inf:
-        return D_NONE
-    if t0 <= last_t:
-        problem = D_STAMP_NOT_AFTER
-        es[ES_DVAL], es[ES_DVAL + 1] = t0, last_t
-    elif t0 - next_t > ep[E_MAX_JUMP]:
-        problem = D_STAMP_JUMP
-        es[ES_DVAL], es[ES_DVAL + 1] = t0, t0 - next_t
-    else:
-        return D_NONE
-    span = n * dt
-    count = int(es[ES_NRESYNC])
-    if not (count > 0 and abs(t0 - es[ES_RESYNC + count - 1] - span) <= 0.5 * dt):
-        count = 0
-    es[ES_RESYNC + count] = t0
-    count += 1
-    if count >= RESYNC_BLOCKS:   # a new time line: follow it
-        es[ES_NRESYNC] = 0.0
-        es[ES_LAST_T], es[ES_NEXT_T] = -math.inf, -math.inf
-        es[ES_ACTIVE] = 0.0
-        return D_NONE
-    es[ES_NRESYNC] = count
-    return problem
-
-
-@compiled
-def estimator_update(ep: np.ndarray, es: np.ndarray, t0: float, dt: float, u: np.ndarray,
-                     v: np.ndarray, angle: np.ndarray, feed: np.ndarray,
-                     work: np.ndarray) -> int:
-    """One block; the estimate in es[ES_T:ES_STATUS + 1], its detail in ES_DCODE; returns the
-    status. ``work`` holds 2 n scratch values (i_q, then the force). The caller has set the
-    filter's coefficients for ``dt`` (E_GAIN_DT) where a new filter may start."""
-    es[ES_DCODE] = D_NONE
-    n = u.size
-    if n == 0 or v.size != n or angle.size != n or feed.size != n:
-        return _invalid(es, D_LENGTHS, 0.0, 0.0)
-    if not (math.isfinite(dt) and dt > 0):
-        return _invalid(es, D_DT_BAD, dt, 0.0)
-    if es[ES_ACTIVE] != 0.0 and not isclose(dt, es[ES_DT], 1e-6):
-        return _invalid(es, D_DT_CHANGED, es[ES_DT], dt)
-    bad = 0
-    for i in range(n):
-        bad += (not math.isfinite(u[i])) + (not math.isfinite(v[i])) \
-            + (not math.isfinite(angle[i])) + (not math.isfinite(feed[i]))
-    if bad:
-        return _invalid(es, D_NONFINITE, float(bad), 0.0)
-    problem = _stamp_problem(ep, es, t0, dt, n)
-    if problem != D_NONE:
-        return _invalid(es, problem, es[ES_DVAL], es[ES_DVAL + 1])
-    peak_u, peak_v = abs(u[0]), abs(v[0])
-    for i in range(1, n):
-        peak_u = max(peak_u, abs(u[i]))
-        peak_v = max(peak_v, abs(v[i]))
-    peak = pymax(peak_u, peak_v)
-    if peak > IMPLAUSIBLE_RANGE_FACTOR * ep[E_RANGE]:
-        return _invalid(es, D_IMPLAUSIBLE, peak, 0.0)
-    scale = es[ES_SCALE]
-    fa, fb, fmin, fmax = ep[E_FR_A], ep[E_FR_B], ep[E_FR_MIN], ep[E_FR_MAX]
-    offset, per = ep[E_MAP_OFF], ep[E_MAP_PER]
-    friction = 0.0
-    finite = True
-    for i in range(n):
-        i_beta = (u[i] + 2.0 * v[i]) / _SQRT3
-        cos, sin = math.cos(angle[i]), math.sin(angle[i])
-        current_q = -u[i] * sin + i_beta * cos
-        friction = scale * friction_current(fa, fb, fmin, fmax, feed[i])
-        raw = (current_q - friction - offset) / per
-        work[i] = current_q
-        work[n + i] = raw
-        finite = finite and math.isfinite(raw)
-    if not finite:
-        return _invalid(es, D_OVERFLOW, peak, 0.0)
-    if es[ES_ACTIVE] == 0.0:
-        es[ES_DT] = dt
-        es[ES_ACTIVE] = 1.0
-        first = work[n]
-        if ep[E_KIND] == KALMAN:
-            es[ES_X], es[ES_X + 1] = first, 0.0
-        else:
-            for s in range(int(ep[E_NSEC])):
-                es[ES_X + 2 * s] = ep[E_SOS_ZI + 2 * s] * first
-                es[ES_X + 2 * s + 1] = ep[E_SOS_ZI + 2 * s + 1] * first
-            es[ES_X + 8] = ep[E_DB1] * first
-    force = 0.0
-    rate = 0.0
-    if ep[E_KIND] == KALMAN:
-        fdt, k0, k1 = es[ES_DT], ep[E_K0], ep[E_K1]
-        x0, x1 = es[ES_X], es[ES_X + 1]
-        for i in range(n):
-            x0 = x0 + fdt * x1
-            innovation = work[n + i] - x0
-            x0, x1 = x0 + k0 * innovation, x1 + k1 * innovation
-        es[ES_X], es[ES_X + 1] = x0, x1
-        force, rate = x0, x1
-    else:
-        sections = int(ep[E_NSEC])
-        db0, db1, da1 = ep[E_DB0], ep[E_DB1], ep[E_DA1]
-        for i in range(n):
-            x = work[n + i]
-            for s in range(sections):
-                base = E_SOS + 6 * s
-                z = ES_X + 2 * s
-                x_new = ep[base] * x + es[z]
-                es[z] = ep[base + 1] * x - ep[base + 4] * x_new + es[z + 1]
-                es[z + 1] = ep[base + 2] * x - ep[base + 5] * x_new
-                x = x_new
-            y = es[ES_X + 8] + db0 * x
-            es[ES_X + 8] = db1 * x - da1 * y
-            force, rate = x, y
-    if not (math.isfinite(force) and math.isfinite(rate)):
-        return _invalid(es, D_FILTER_OVERFLOW, peak, 0.0)
-    es[ES_LAST_T] = t0
-    es[ES_NEXT_T] = t0 + n * dt
-    es[ES_NRESYNC] = 0.0
-    mean_q = pairwise_sum(work, 0, n) / n
-    # ForceEstimator._rezero
-    below = ep[E_REZ_BELOW]
-    in_air = below > 0 and abs(force) < below
-    es[ES_AIR] = es[ES_AIR] + n * dt if in_air else 0.0
-    if es[ES_AIR] >= ep[E_REZ_AFTER]:
-        slowest = abs(feed[0])
-        for i in range(1, n):
-            slowest = min(slowest, abs(feed[i]))
-        if slowest >= fmin:
-            for i in range(n):
-                work[n + i] = friction_current(fa, fb, fmin, fmax, feed[i])
-            model = pairwise_sum(work, n, n) / n
-            if abs(model) >= 1e-9:
-                measured = mean_q - offset
-                weight = 1.0 - math.exp(-n * dt / ep[E_REZ_TAU])
-                new_scale = scale + weight * (measured / model - scale)
-                es[ES_SCALE] = pymin(pymax(new_scale, 1.0 - ep[E_REZ_MAX]), 1.0 + ep[E_REZ_MAX])
-                es[ES_DCODE], es[ES_DVAL] = D_REZEROED, es[ES_SCALE]
-    status = OK
-    if peak > ep[E_RANGE]:
-        status = SATURATED
-        es[ES_DCODE], es[ES_DVAL] = D_SATURATED, peak
-    es[ES_T] = t0 + (n - 1) * dt
-    es[ES_F], es[ES_R], es[ES_IQ] = force, rate, mean_q
-    es[ES_IFR], es[ES_STATUS] = friction, status
-    return status
 
 
 # --- the controllers (core/control) ---------------------------------------------------------
@@ -1098,25 +771,6 @@ def replay_blocks(ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr, gp: Arr, gs:
                            angle[k], feed[k], work, inputs[k], out, dec, cut, cuts, ncuts)
         _chain_row(rows, k, es, acted, out, cp, gs, dec)
     return change
-
-
-@entry('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64, '
-      'float64[::1], float64[::1], float64[::1], float64[::1], int64, float64[::1], '
-      'float64[::1], float64[::1], float64[::1], float64[:, ::1])')
-def plant_block(pp: Arr, ps: Arr, times: Arr, depths: Arr, override_pct: float, noise_u: Arr,
-                noise_v: Arr, noise_f: Arr, noise_fr: Arr, lo: int, u: Arr, v: Arr, angle: Arr,
-                feed_rate: Arr, truth: Arr) -> float:
-    """:func:`plant_step` from Python (:class:`turning_force.core.plant.LathePlant`)."""
-    return plant_step(pp, ps, times, depths, override_pct, noise_u, noise_v, noise_f, noise_fr,
-                      lo, u, v, angle, feed_rate, truth)
-
-
-@entry('int64(float64[::1], float64[::1], float64, float64, float64[::1], float64[::1], '
-      'float64[::1], float64[::1], float64[::1])')
-def estimate_block(ep: Arr, es: Arr, t0: float, dt: float, u: Arr, v: Arr, angle: Arr,
-                   feed: Arr, work: Arr) -> int:
-    """:func:`estimator_update` for one block from Python (the nodes, replay)."""
-    return estimator_update(ep, es, t0, dt, u, v, angle, feed, work)
 
 
 @entry('void(float64[::1], float64[::1])')

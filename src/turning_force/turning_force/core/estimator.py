@@ -1,0 +1,405 @@
+"""The force estimator, compiled: Clarke-Park, friction (Park Eq. 25), the current map (Park
+Eq. 26), the Kalman or low-pass filter, the friction re-zero and the checks on every block
+(:mod:`turning_force.core.estimation` states them and holds the settings).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from turning_force.core import lti
+from turning_force.core.compiled import Arr, compiled, entry, isclose, pairwise_sum, pymax, pymin
+from turning_force.core.drive import CurrentBlock
+from turning_force.core.estimation import (
+    IMPLAUSIBLE_RANGE_FACTOR,
+    RESYNC_BLOCKS,
+    EstimateStatus,
+    EstimatorSettings,
+    ForceEstimate,
+)
+from turning_force.core.feeddrive import friction_current
+
+__all__ = ['ForceEstimator', 'detail_text', 'estimator_update', 'rezeroed_text']
+
+FloatArray = npt.NDArray[np.float64]
+OK, STALE, INVALID_INPUT, SATURATED = (int(s) for s in EstimateStatus)
+_SQRT3 = math.sqrt(3.0)
+
+# --- estimator parameters -------------------------------------------------------------------
+E_KIND, E_FR_A, E_FR_B, E_FR_MIN, E_FR_MAX, E_MAP_OFF, E_MAP_PER, E_RANGE = range(8)
+E_REZ_BELOW, E_REZ_AFTER, E_REZ_TAU, E_REZ_MAX, E_MAX_JUMP = range(8, 13)
+E_GAIN_DT, E_K0, E_K1, E_NSEC, E_DB0, E_DB1, E_DA1 = range(13, 20)
+E_SOS, E_SOS_ZI = 20, 44                      # 4 sections x 6, 4 sections x 2
+E_SIZE = 52
+KALMAN, LOWPASS = 0, 1
+# estimator state
+ES_ACTIVE, ES_DT, ES_LAST_T, ES_NEXT_T, ES_NRESYNC, ES_RESYNC = 0, 1, 2, 3, 4, 5   # 3 slots
+ES_SCALE, ES_AIR, ES_RESTARTS = 8, 9, 10
+ES_T, ES_F, ES_R, ES_IQ, ES_IFR, ES_STATUS = range(11, 17)
+ES_DCODE, ES_DVAL = 17, 18                    # detail code, 2 values
+ES_X = 20                                     # Kalman x (2) or low-pass zi (8) and dzi (1)
+ES_SIZE = 29
+# detail codes (ForceEstimator's one-line problems and notes)
+D_NONE, D_LENGTHS, D_DT_BAD, D_DT_CHANGED, D_NONFINITE, D_STAMP_NONFINITE = range(6)
+D_STAMP_NOT_AFTER, D_STAMP_JUMP, D_IMPLAUSIBLE, D_OVERFLOW, D_FILTER_OVERFLOW = range(6, 11)
+D_SATURATED, D_REZEROED = 11, 12
+
+
+# --- the estimator (core/estimation.py ForceEstimator.update) -------------------------------
+
+@compiled
+def _invalid(es: np.ndarray, code: int, a: float, b: float) -> int:
+    if es[ES_ACTIVE] != 0.0:
+        es[ES_ACTIVE] = 0.0
+        es[ES_RESTARTS] += 1.0
+    es[ES_STATUS] = INVALID_INPUT
+    es[ES_DCODE], es[ES_DVAL], es[ES_DVAL + 1] = code, a, b
+    return INVALID_INPUT
+
+
+@compiled
+def _stamp_problem(ep: np.ndarray, es: np.ndarray, t0: float, dt: float, n: int) -> int:
+    """ForceEstimator._check_stamp: a detail code, or D_NONE (values in ES_DVAL)."""
+    if not math.isfinite(t0):
+        es[ES_DVAL] = t0
+        return D_STAMP_NONFINITE
+    last_t, next_t = es[ES_LAST_T], es[ES_NEXT_T]
+    if last_t == -math.inf:
+        return D_NONE
+    if t0 <= last_t:
+        problem = D_STAMP_NOT_AFTER
+        es[ES_DVAL], es[ES_DVAL + 1] = t0, last_t
+    elif t0 - next_t > ep[E_MAX_JUMP]:
+        problem = D_STAMP_JUMP
+        es[ES_DVAL], es[ES_DVAL + 1] = t0, t0 - next_t
+    else:
+        return D_NONE
+    span = n * dt
+    count = int(es[ES_NRESYNC])
+    if not (count > 0 and abs(t0 - es[ES_RESYNC + count - 1] - span) <= 0.5 * dt):
+        count = 0
+    es[ES_RESYNC + count] = t0
+    count += 1
+    if count >= RESYNC_BLOCKS:   # a new time line: follow it
+        es[ES_NRESYNC] = 0.0
+        es[ES_LAST_T], es[ES_NEXT_T] = -math.inf, -math.inf
+        es[ES_ACTIVE] = 0.0
+        return D_NONE
+    es[ES_NRESYNC] = count
+    return problem
+
+
+@compiled
+def estimator_update(ep: np.ndarray, es: np.ndarray, t0: float, dt: float, u: np.ndarray,
+                     v: np.ndarray, angle: np.ndarray, feed: np.ndarray,
+                     work: np.ndarray) -> int:
+    """One block; the estimate in es[ES_T:ES_STATUS + 1], its detail in ES_DCODE; returns the
+    status. ``work`` holds 2 n scratch values (i_q, then the force). The caller has set the
+    filter's coefficients for ``dt`` (E_GAIN_DT) where a new filter may start."""
+    es[ES_DCODE] = D_NONE
+    n = u.size
+    if n == 0 or v.size != n or angle.size != n or feed.size != n:
+        return _invalid(es, D_LENGTHS, 0.0, 0.0)
+    if not (math.isfinite(dt) and dt > 0):
+        return _invalid(es, D_DT_BAD, dt, 0.0)
+    if es[ES_ACTIVE] != 0.0 and not isclose(dt, es[ES_DT], 1e-6):
+        return _invalid(es, D_DT_CHANGED, es[ES_DT], dt)
+    bad = 0
+    for i in range(n):
+        bad += (not math.isfinite(u[i])) + (not math.isfinite(v[i])) \
+            + (not math.isfinite(angle[i])) + (not math.isfinite(feed[i]))
+    if bad:
+        return _invalid(es, D_NONFINITE, float(bad), 0.0)
+    problem = _stamp_problem(ep, es, t0, dt, n)
+    if problem != D_NONE:
+        return _invalid(es, problem, es[ES_DVAL], es[ES_DVAL + 1])
+    peak_u, peak_v = abs(u[0]), abs(v[0])
+    for i in range(1, n):
+        peak_u = max(peak_u, abs(u[i]))
+        peak_v = max(peak_v, abs(v[i]))
+    peak = pymax(peak_u, peak_v)
+    if peak > IMPLAUSIBLE_RANGE_FACTOR * ep[E_RANGE]:
+        return _invalid(es, D_IMPLAUSIBLE, peak, 0.0)
+    scale = es[ES_SCALE]
+    fa, fb, fmin, fmax = ep[E_FR_A], ep[E_FR_B], ep[E_FR_MIN], ep[E_FR_MAX]
+    offset, per = ep[E_MAP_OFF], ep[E_MAP_PER]
+    friction = 0.0
+    finite = True
+    for i in range(n):
+        i_beta = (u[i] + 2.0 * v[i]) / _SQRT3
+        cos, sin = math.cos(angle[i]), math.sin(angle[i])
+        current_q = -u[i] * sin + i_beta * cos
+        friction = scale * friction_current(fa, fb, fmin, fmax, feed[i])
+        raw = (current_q - friction - offset) / per
+        work[i] = current_q
+        work[n + i] = raw
+        finite = finite and math.isfinite(raw)
+    if not finite:
+        return _invalid(es, D_OVERFLOW, peak, 0.0)
+    if es[ES_ACTIVE] == 0.0:
+        es[ES_DT] = dt
+        es[ES_ACTIVE] = 1.0
+        first = work[n]
+        if ep[E_KIND] == KALMAN:
+            es[ES_X], es[ES_X + 1] = first, 0.0
+        else:
+            for s in range(int(ep[E_NSEC])):
+                es[ES_X + 2 * s] = ep[E_SOS_ZI + 2 * s] * first
+                es[ES_X + 2 * s + 1] = ep[E_SOS_ZI + 2 * s + 1] * first
+            es[ES_X + 8] = ep[E_DB1] * first
+    force = 0.0
+    rate = 0.0
+    if ep[E_KIND] == KALMAN:
+        fdt, k0, k1 = es[ES_DT], ep[E_K0], ep[E_K1]
+        x0, x1 = es[ES_X], es[ES_X + 1]
+        for i in range(n):
+            x0 = x0 + fdt * x1
+            innovation = work[n + i] - x0
+            x0, x1 = x0 + k0 * innovation, x1 + k1 * innovation
+        es[ES_X], es[ES_X + 1] = x0, x1
+        force, rate = x0, x1
+    else:
+        sections = int(ep[E_NSEC])
+        db0, db1, da1 = ep[E_DB0], ep[E_DB1], ep[E_DA1]
+        for i in range(n):
+            x = work[n + i]
+            for s in range(sections):
+                base = E_SOS + 6 * s
+                z = ES_X + 2 * s
+                x_new = ep[base] * x + es[z]
+                es[z] = ep[base + 1] * x - ep[base + 4] * x_new + es[z + 1]
+                es[z + 1] = ep[base + 2] * x - ep[base + 5] * x_new
+                x = x_new
+            y = es[ES_X + 8] + db0 * x
+            es[ES_X + 8] = db1 * x - da1 * y
+            force, rate = x, y
+    if not (math.isfinite(force) and math.isfinite(rate)):
+        return _invalid(es, D_FILTER_OVERFLOW, peak, 0.0)
+    es[ES_LAST_T] = t0
+    es[ES_NEXT_T] = t0 + n * dt
+    es[ES_NRESYNC] = 0.0
+    mean_q = pairwise_sum(work, 0, n) / n
+    # ForceEstimator._rezero
+    below = ep[E_REZ_BELOW]
+    in_air = below > 0 and abs(force) < below
+    es[ES_AIR] = es[ES_AIR] + n * dt if in_air else 0.0
+    if es[ES_AIR] >= ep[E_REZ_AFTER]:
+        slowest = abs(feed[0])
+        for i in range(1, n):
+            slowest = min(slowest, abs(feed[i]))
+        if slowest >= fmin:
+            for i in range(n):
+                work[n + i] = friction_current(fa, fb, fmin, fmax, feed[i])
+            model = pairwise_sum(work, n, n) / n
+            if abs(model) >= 1e-9:
+                measured = mean_q - offset
+                weight = 1.0 - math.exp(-n * dt / ep[E_REZ_TAU])
+                new_scale = scale + weight * (measured / model - scale)
+                es[ES_SCALE] = pymin(pymax(new_scale, 1.0 - ep[E_REZ_MAX]), 1.0 + ep[E_REZ_MAX])
+                es[ES_DCODE], es[ES_DVAL] = D_REZEROED, es[ES_SCALE]
+    status = OK
+    if peak > ep[E_RANGE]:
+        status = SATURATED
+        es[ES_DCODE], es[ES_DVAL] = D_SATURATED, peak
+    es[ES_T] = t0 + (n - 1) * dt
+    es[ES_F], es[ES_R], es[ES_IQ] = force, rate, mean_q
+    es[ES_IFR], es[ES_STATUS] = friction, status
+    return status
+
+
+@entry('int64(float64[::1], float64[::1], float64, float64, float64[::1], float64[::1], '
+      'float64[::1], float64[::1], float64[::1])')
+def estimate_block(ep: Arr, es: Arr, t0: float, dt: float, u: Arr, v: Arr, angle: Arr,
+                   feed: Arr, work: Arr) -> int:
+    """:func:`estimator_update` for one block from Python (the nodes, replay)."""
+    return estimator_update(ep, es, t0, dt, u, v, angle, feed, work)
+
+
+
+class ForceEstimator:
+    """Force and force rate from blocks of feed-drive currents.
+
+    A block with non-finite samples, mismatched arrays, a bad or changed sample period, or a
+    stamp not after the previous one (or further ahead than ``max_stamp_jump_s``) is reported
+    ``INVALID_INPUT``; so is a block with a sample past twice the sensor range (no Hall sensor
+    reads that: a corrupt value) or whose values overflow the filter.
+    The estimate then repeats the last good force, always finite, and the filter restarts at
+    the next good block: a gap in the data is not bridged by a filter state that no longer
+    matches it.
+
+    Stamps: a DAQ that restarts (or a clock that steps) starts a new time line; after
+    ``RESYNC_BLOCKS`` contiguous blocks on it, the estimator follows it. One stray stamp
+    (1e9 s) is refused and the blocks after it, on the old time line, are taken as before.
+
+    Friction re-zero: while the tool is out of the material (Park Eq. 25 drifts with the
+    slideway's temperature and lubrication), the q current less Eq. 26's zero-force offset is
+    friction alone, and its ratio to the calibrated curve at this feed scales the curve, within
+    ``rezero_max_change``.
+
+    The arithmetic is written once, as the compiled ``estimator_update`` of
+    :mod:`turning_force.core.kernel.jit` (which the compiled loops run on :meth:`arrays_for`);
+    this class holds its parameters and state and puts its codes into words.
+    """
+
+    def __init__(self, settings: EstimatorSettings) -> None:
+        self.settings = settings
+        self._params = _estimator_params(settings)
+        state = np.zeros(ES_SIZE)
+        state[ES_LAST_T] = state[ES_NEXT_T] = -math.inf
+        state[ES_SCALE] = 1.0
+        state[ES_STATUS] = EstimateStatus.STALE
+        self._state = state
+        self._work = np.empty(0)
+        self._last = ForceEstimate(0.0, 0.0, 0.0, 0.0, 0.0, EstimateStatus.STALE, 'no data yet')
+
+    @property
+    def last(self) -> ForceEstimate:
+        return self._last
+
+    @property
+    def friction_scale(self) -> float:
+        """Re-zeroed friction / calibrated friction."""
+        return float(self._state[ES_SCALE])
+
+    @property
+    def restarts(self) -> int:
+        """How often the filter restarted after a refused block."""
+        return int(self._state[ES_RESTARTS])
+
+    def arrays_for(self, sample_period_s: float) -> tuple[FloatArray, FloatArray]:
+        """(parameters, state) as ``estimator_update`` reads them (live: a loop that runs
+        them runs this estimator), the filter's coefficients set for blocks sampled at
+        ``sample_period_s`` (where that is one)."""
+        if (self._state[ES_ACTIVE] == 0.0 and math.isfinite(sample_period_s)
+                and sample_period_s > 0):
+            _set_filter(self._params, self.settings, sample_period_s)
+        return self._params, self._state
+
+    def update(self, block: CurrentBlock) -> ForceEstimate:
+        """Process one block; return the estimate at its last sample."""
+        params, state = self.arrays_for(block.sample_period_s)
+        n = len(block)
+        if self._work.size < 2 * n:
+            self._work = np.empty(2 * n)
+        status = int(estimate_block(
+            params, state, float(block.t0_s), float(block.sample_period_s),
+            _contiguous(block.phase_u_a), _contiguous(block.phase_v_a),
+            _contiguous(block.rotor_angle_rad), _contiguous(block.feed_rate_mm_min),
+            self._work))
+        detail = detail_text(self.settings, block, int(state[ES_DCODE]),
+                             float(state[ES_DVAL]), float(state[ES_DVAL + 1]))
+        if status == EstimateStatus.INVALID_INPUT:
+            last = self._last
+            self._last = ForceEstimate(last.t_s, last.force_n, last.force_rate_n_s,
+                                       last.current_q_a, last.friction_current_a,
+                                       EstimateStatus.INVALID_INPUT, detail)
+        else:
+            self._last = ForceEstimate(
+                float(state[ES_T]), float(state[ES_F]), float(state[ES_R]),
+                float(state[ES_IQ]), float(state[ES_IFR]), EstimateStatus(status),
+                detail)
+        return self._last
+
+
+def _contiguous(values: FloatArray) -> FloatArray:
+    """What the compiled function takes: C-contiguous, writable float64 (a block decoded from
+    a bag is a read-only view of the message's buffer)."""
+    out = np.ascontiguousarray(values, dtype=np.float64)
+    return out if out.flags.writeable else out.copy()
+
+
+def _estimator_params(settings: EstimatorSettings) -> FloatArray:
+    """The estimator's parameters (``E_*``); the filter's coefficients come with
+    :func:`_set_filter` once the sample period is known."""
+    p = np.zeros(E_SIZE)
+    p[E_KIND] = KALMAN if settings.force_filter == 'kalman' else LOWPASS
+    f, m = settings.friction, settings.current_map
+    p[E_FR_A], p[E_FR_B] = f.a_a_per_mm_min2, f.b_a
+    p[E_FR_MIN], p[E_FR_MAX] = f.min_feed_mm_min, f.max_feed_mm_min
+    p[E_MAP_OFF], p[E_MAP_PER] = m.offset_a, m.per_force_a_n
+    p[E_RANGE] = settings.current_range_a
+    p[E_REZ_BELOW], p[E_REZ_AFTER] = settings.rezero_below_n, settings.rezero_after_s
+    p[E_REZ_TAU] = settings.rezero_time_constant_s
+    p[E_REZ_MAX] = settings.rezero_max_change
+    p[E_MAX_JUMP] = settings.max_stamp_jump_s
+    p[E_GAIN_DT] = math.nan
+    return p
+
+
+def _set_filter(params: FloatArray, settings: EstimatorSettings,
+                dt_s: float) -> None:
+    """The filter's coefficients for sample period ``dt_s``.
+
+    - ``kalman``: the steady-state gain of a Kalman filter for x = [F, dF/dt] under white
+      force acceleration (El-Sinawi 2011, Sec. 4, on the force alone; :func:`lti.kalman_gain`):
+      the filter is then linear and time-invariant.
+    - ``lowpass``: Park's Butterworth preprocessor as second-order sections (cut-off at most
+      0.9 x Nyquist), its unit initial state, and the filtered derivative
+      ``y[k] = alpha y[k-1] + (1 - alpha) (x[k] - x[k-1]) / dt``,
+      ``alpha = exp(-dt / derivative_time_constant_s)``.
+    """
+    if params[E_GAIN_DT] == dt_s:
+        return
+    if settings.force_filter == 'kalman':
+        params[E_K0], params[E_K1] = lti.kalman_gain(
+            dt_s, settings.kalman_accel_noise_n_s2, settings.kalman_force_noise_n)
+    else:
+        from scipy import signal  # 0.7-0.9 s to import: only where the low-pass is chosen
+
+        cutoff = min(settings.lowpass_cutoff_hz, 0.9 * 0.5 / dt_s)
+        sos = signal.butter(settings.lowpass_order, cutoff, fs=1.0 / dt_s, output='sos')
+        if sos.shape[0] > 4:
+            raise ValueError(f'lowpass_order {settings.lowpass_order}: more than 4 sections')
+        params[E_NSEC] = sos.shape[0]
+        params[E_SOS:E_SOS + sos.size] = sos.ravel()
+        zi = signal.sosfilt_zi(sos) * 1.0
+        params[E_SOS_ZI:E_SOS_ZI + zi.size] = zi.ravel()
+        alpha = math.exp(-dt_s / settings.derivative_time_constant_s)
+        params[E_DB0], params[E_DB1] = np.array([1.0, -1.0]) * (1.0 - alpha) / dt_s
+        params[E_DA1] = -alpha
+    params[E_GAIN_DT] = dt_s
+
+
+def detail_text(settings: EstimatorSettings, block: CurrentBlock, code: int, a: float,
+                b: float) -> str:
+    """The one line (:attr:`ForceEstimate.detail`) for the estimator's detail code and values
+    on ``block``."""
+    if code == D_NONE:
+        return ''
+    if code == D_LENGTHS:
+        arrays = (block.phase_u_a, block.phase_v_a, block.rotor_angle_rad,
+                  block.feed_rate_mm_min)
+        return f'array lengths {[x.size for x in arrays]} differ or are empty'
+    if code == D_DT_BAD:
+        return f'sample period {block.sample_period_s!r} s is not a positive number'
+    if code == D_DT_CHANGED:
+        return f'sample period changed from {a!r} s to {block.sample_period_s!r} s'
+    if code == D_NONFINITE:
+        return f'{int(a)} non-finite samples'
+    if code == D_STAMP_NONFINITE:
+        return f'stamp {block.t0_s!r} s is not finite'
+    if code == D_STAMP_NOT_AFTER:
+        return f'stamp {block.t0_s!r} s is not after the previous {b!r} s'
+    if code == D_STAMP_JUMP:
+        return (f'stamp {block.t0_s!r} s jumps {b:.6g} s past the previous block '
+                f'(max_stamp_jump_s {settings.max_stamp_jump_s:g})')
+    if code == D_IMPLAUSIBLE:
+        return (f'phase current {a:.3g} A is beyond {IMPLAUSIBLE_RANGE_FACTOR:g} x the '
+                f'sensor range ({settings.current_range_a:g} A): not a reading')
+    if code == D_OVERFLOW:
+        return f'currents overflow the force computation (|i| up to {a:.3g} A)'
+    if code == D_FILTER_OVERFLOW:
+        return f'force filter overflowed (|i| up to {a:.3g} A)'
+    if code == D_SATURATED:
+        return f'phase current {a:.3g} A beyond the sensor range'
+    return rezeroed_text(a)
+
+
+def rezeroed_text(scale: float) -> str:
+    """The line for a friction re-zero to ``scale``."""
+    return f'friction re-zeroed in air: {scale:.3f} x calibrated'
+
+
