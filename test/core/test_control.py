@@ -5,11 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from turning_force.core import kernel
 from turning_force.core.control import ControllerSettings, make_controller
+from turning_force.core.control import laws as jit
 from turning_force.core.errors import ConfigError
-
-jit = kernel.load()
 
 
 def theta(controller):

@@ -437,7 +437,7 @@ def _pool(jobs: int) -> Any:
     # (numba's import and the cached machine code, about a second), so that every worker of
     # every sweep starts with it; the initializer only finishes the load.
     context = multiprocessing.get_context('forkserver')
-    context.set_forkserver_preload(['__main__', 'turning_force.core.kernel.jit'])
+    context.set_forkserver_preload(['__main__', 'turning_force.core.kernel.loops'])
     return ProcessPoolExecutor(jobs, mp_context=context, initializer=_load_kernel)
 
 

@@ -9,7 +9,7 @@ made at the end of its block); :func:`run_core` is :func:`turning_force.core.sim
 keeping every sample, estimate, command and decision besides its trace.
 
 Both run compiled (``replay_blocks`` and ``run_core_kept`` of
-:mod:`turning_force.core.kernel.jit`): the same estimator, controller and gate the nodes run.
+:mod:`turning_force.core.kernel.loops`): the same estimator, controller and gate the nodes run.
 Blocks of differing lengths or sample periods (no one array holds them) go through
 :class:`turning_force.core.loop.ControlChain` one block at a time: the same functions again.
 """

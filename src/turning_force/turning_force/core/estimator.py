@@ -240,7 +240,7 @@ class ForceEstimator:
     ``rezero_max_change``.
 
     The arithmetic is written once, as the compiled ``estimator_update`` of
-    :mod:`turning_force.core.kernel.jit` (which the compiled loops run on :meth:`arrays_for`);
+    :mod:`turning_force.core.kernel.loops` (which the compiled loops run on :meth:`arrays_for`);
     this class holds its parameters and state and puts its codes into words.
     """
 

@@ -3,7 +3,7 @@
 :mod:`turning_force.core.pmc` states the rules and their order (the safety gate first, then the
 shop floor's behaviours of :mod:`turning_force.core.shopfloor`); here they are written once, as
 compiled functions (``gate_*``) on a parameter and a state array, which the compiled loops run
-(:mod:`turning_force.core.kernel.jit`) and :class:`OverrideGate` runs for the bridge, one block
+(:mod:`turning_force.core.kernel.loops`) and :class:`OverrideGate` runs for the bridge, one block
 at a time, putting their codes into words.
 """
 

@@ -27,12 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.control import (
-    Controller,
-    ControllerSettings,
-    ControlOutput,
-    make_controller,
-)
+from turning_force.core.control import ControllerSettings, ControlOutput, make_controller
+from turning_force.core.control.base import Controller
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import ConfigError
 from turning_force.core.estimation import EstimatorSettings, ForceEstimate

@@ -6,7 +6,7 @@ the period before; the chain runs on it and its gate (quantiser, watchdog, overl
 shop-floor behaviours) decides what is applied for the next block. That one-period delay and
 that gate are the same the node graph has, so both give the same numbers.
 
-The loop is compiled (``run_core`` of :mod:`turning_force.core.kernel.jit`): the plant, the
+The loop is compiled (``run_core`` of :mod:`turning_force.core.kernel.loops`): the plant, the
 estimator, the controller and the gate are the same functions the nodes run, over stretches of
 blocks whose noise is drawn in advance from the plant's own generator.
 """

@@ -27,16 +27,21 @@ reads its settings into the compiled function.
 
 from __future__ import annotations
 
-from turning_force.core.control.base import Controller, ControlOutput
-from turning_force.core.control.law import Law
+from typing import TYPE_CHECKING
+
+from turning_force.core.control.law import ControlOutput, Law
 from turning_force.core.control.registry import CONTROLLERS
 from turning_force.core.control.settings import ControllerSettings
 
-__all__ = ['CONTROLLERS', 'ControlOutput', 'Controller', 'ControllerSettings', 'Law',
-           'make_controller']
+if TYPE_CHECKING:
+    from turning_force.core.control.base import Controller
+
+__all__ = ['CONTROLLERS', 'ControlOutput', 'ControllerSettings', 'Law', 'make_controller']
 
 
 def make_controller(settings: ControllerSettings) -> Controller:
     """The controller running the law ``settings.controller`` names (validated by the
-    settings)."""
+    settings); its compiled code is imported here, not with the settings."""
+    from turning_force.core.control.base import Controller
+
     return Controller(settings)

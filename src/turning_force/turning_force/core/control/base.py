@@ -4,47 +4,30 @@ state, the error-feedback quantiser and the reachability flag.
 A law is a module of this package with a :class:`.law.Law` entry in :mod:`.registry`: its name, its
 number in the compiled dispatch, and the function that reads its settings into the compiled
 parameters. Its arithmetic is written once, as a compiled function of
-:mod:`turning_force.core.kernel.jit` (``controller_update`` and the law's own function beside
+:mod:`turning_force.core.control.laws` (``controller_update`` and the law's own function beside
 it); :class:`Controller` runs it one period at a time, the compiled loops many periods at once.
 """
 
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
 from types import ModuleType
 from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core import kernel
+from turning_force.core.control import laws
+from turning_force.core.control.law import ControlOutput
 from turning_force.core.control.registry import CONTROLLERS
 from turning_force.core.overrides import OverrideTable, get_table
 
 if TYPE_CHECKING:
     from turning_force.core.control.settings import ControllerSettings
 
-__all__ = ['ControlOutput', 'Controller']
+__all__ = ['Controller']
 
 FloatArray = npt.NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class ControlOutput:
-    """One control decision (the core side of ``FeedCommand``).
-
-    ``error_n`` is ``F - F_ref`` (Park Eq. 9); ``sliding_variable`` is the controller's ``s``
-    (0 for controllers that have none); ``reachable`` is false once the request has sat at the
-    table's end, pushing the wrong way for the force to follow, for ``unreachable_after_s``: at
-    150 % with the force still below the reference (the cut is too light for it), or at 0 %
-    with it still above.
-    """
-
-    override_pct: float
-    error_n: float
-    sliding_variable: float
-    reachable: bool = True
 
 
 class Controller:
@@ -74,7 +57,7 @@ class Controller:
     """
 
     def __init__(self, settings: ControllerSettings) -> None:
-        jit = kernel.load()
+        jit = laws
         self.settings = settings
         self.name = settings.controller
         self._table = get_table(settings.override_table)
@@ -96,16 +79,16 @@ class Controller:
     @property
     def resets(self) -> int:
         """How often the law was reset after a non-finite input or state."""
-        return int(self._state[kernel.load().CS_RESETS])
+        return int(self._state[laws.CS_RESETS])
 
     def retune(self, settings: ControllerSettings) -> None:
         """Take new dynamic settings (reference, gains) from the next update on."""
         self.settings = settings
-        self._params = _params(kernel.load(), settings, self._table)[0]
+        self._params = _params(laws, settings, self._table)[0]
 
     def update(self, force_n: float, force_rate_n_s: float) -> ControlOutput:
         """One control period: measured force and force rate in, override request out."""
-        jit, out = kernel.load(), self._out
+        jit, out = laws, self._out
         jit.control_step(self._params, self._state, self._levels, float(force_n),
                          float(force_rate_n_s), out)
         return ControlOutput(float(out[jit.OUT_PCT]), float(out[jit.OUT_ERR]),

@@ -1,4 +1,5 @@
-"""What a control law is to the controller that runs it (:class:`Law`)."""
+"""What a control law is to the controller that runs it (:class:`Law`), and what it gives
+(:class:`ControlOutput`)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import numpy.typing as npt
 if TYPE_CHECKING:
     from turning_force.core.control.settings import ControllerSettings
 
-__all__ = ['Law']
+__all__ = ['ControlOutput', 'Law']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -31,3 +32,20 @@ class Law:
     kind: Callable[[ModuleType], int]
     fill: Callable[[ModuleType, ControllerSettings, FloatArray], tuple[FloatArray, int]]
     summary: str
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    """One control decision (the core side of ``FeedCommand``).
+
+    ``error_n`` is ``F - F_ref`` (Park Eq. 9); ``sliding_variable`` is the controller's ``s``
+    (0 for controllers that have none); ``reachable`` is false once the request has sat at the
+    table's end, pushing the wrong way for the force to follow, for ``unreachable_after_s``: at
+    150 % with the force still below the reference (the cut is too light for it), or at 0 %
+    with it still above.
+    """
+
+    override_pct: float
+    error_n: float
+    sliding_variable: float
+    reachable: bool = True

@@ -1,17 +1,18 @@
-"""The compiled kernel: the plant, the estimator, the control laws, the PMC gate with the shop
-floor's behaviours, and the loops that run them, as numba functions (:mod:`.jit`); and the
-loader that puts their machine code in the user's cache.
+"""The compiled kernel's loader and loops.
 
-Each algorithm is written once, there, and runs compiled on every path: the nodes one block at
-a time (:class:`turning_force.core.plant.LathePlant`,
-:class:`turning_force.core.estimation.ForceEstimator`,
-:class:`turning_force.core.control.Controller`, :class:`turning_force.core.pmc.OverrideGate`),
-the core loop (:func:`.jit.run_core`), replay (:func:`.jit.replay_blocks`) and sweeps many
-blocks at once. The same functions run as plain Python under numba's own switch
-(``NUMBA_DISABLE_JIT=1``), for debugging and coverage.
+Each algorithm is written once, compiled, in the module of its stage of the signal chain: the
+plant (:mod:`turning_force.core.lathe`), the estimator (:mod:`turning_force.core.estimator`), the
+control laws (:mod:`turning_force.core.control.laws`), the PMC gate with the shop floor's
+behaviours (:mod:`turning_force.core.gate`). They run compiled on every path: the nodes one
+block at a time (:class:`~turning_force.core.lathe.LathePlant`,
+:class:`~turning_force.core.estimator.ForceEstimator`,
+:class:`~turning_force.core.control.base.Controller`,
+:class:`~turning_force.core.gate.OverrideGate`), the loops here (:mod:`.loops`: the core loop,
+replay, sweeps) many blocks at once. The same functions run as plain Python under numba's own
+switch (``NUMBA_DISABLE_JIT=1``), for debugging and coverage.
 
 :func:`load` imports (and, with a cold cache, compiles: ``cache=True`` keeps the machine code in
-:func:`cache_dir`) the kernel, before any block runs.
+:func:`cache_dir`) all of it, before any block runs.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def load() -> ModuleType:
             warm = cache_is_warm()
             try:
                 from turning_force.core import compiled
-                from turning_force.core.kernel import jit
+                from turning_force.core.kernel import loops as jit
             except Exception as exc:   # a broken numba install: say so
                 raise RuntimeError(f'the compiled kernel did not load: {exc!r}') from exc
             if not warm:

@@ -1,19 +1,11 @@
-"""The compiled kernel: the plant, the estimator, the control laws, the PMC gate with the shop
-floor's behaviours, the quantiser and the loops, as numba functions on flat float64 arrays
-(parameters and state). Each algorithm is here once; the Python classes that hold its arrays
-(:class:`~turning_force.core.plant.LathePlant`,
-:class:`~turning_force.core.estimation.ForceEstimator`,
-:class:`~turning_force.core.control.Controller`, :class:`~turning_force.core.pmc.OverrideGate`)
-and the loops (:mod:`turning_force.core.simulate`, :mod:`turning_force.core.batch`) call it.
+"""The control laws, compiled: each law's function, the Smith predictor's models, the
+recursive least squares, and what every law shares (the guard on its state, the
+error-feedback quantiser, the reachability flag), in ``controller_update``.
 
-Some choices keep the numbers the historical Python reference gave (the golden traces hold
-them): numpy's pairwise sum for a block's means (:func:`pairwise_sum`), Python's ``min``/``max``
-tie rules (:func:`pymin`, :func:`pymax`), products rather than ``** 2``. Division by zero gives
-IEEE infinities (``error_model='numpy'``). The slot numbers live here, next to the code that
-reads them; the objects that own the arrays fill them.
-
-Entry points have explicit signatures: importing this module compiles them, or with a warm
-cache (``cache=True``, in :func:`turning_force.core.kernel.cache_dir`) loads them from disk.
+Each law's module in this package states the law and reads its settings into these
+functions' parameters (``C_*``); :class:`turning_force.core.control.Controller` holds the
+parameters and the state (``CS_*``) and runs them one period at a time, the compiled loops
+(:mod:`turning_force.core.kernel.loops`) many periods at once.
 """
 
 from __future__ import annotations
@@ -22,49 +14,7 @@ import math
 
 import numpy as np
 
-from turning_force.core.compiled import (
-    Arr,
-    compiled,
-    entry,
-    pymax,
-    pymin,
-    quantise,
-)
-from turning_force.core.estimator import (
-    ES_DCODE,
-    ES_DVAL,
-    ES_F,
-    ES_IFR,
-    ES_IQ,
-    ES_R,
-    ES_STATUS,
-    OK,
-    SATURATED,
-    estimator_update,
-)
-from turning_force.core.gate import (
-    CUT_FIELDS,
-    CUT_READY,
-    DEC_ALARM,
-    DEC_APPLIED,
-    DEC_ENGAGED,
-    DEC_FIELDS,
-    DEC_REASON,
-    DEC_STOP,
-    G_TEACH_FRACTION,
-    GS_ARMED,
-    GS_L_LEVEL,
-    GS_L_REFUSED,
-    GS_LEARNED,
-    GS_REQ,
-    LEARN_OK,
-    gate_answer,
-    gate_arm,
-    gate_inputs,
-    gate_on_command,
-    gate_on_estimate,
-)
-from turning_force.core.lathe import P_DT, P_N, plant_step
+from turning_force.core.compiled import Arr, compiled, entry, pymax, pymin, quantise
 
 # --- controller parameters ------------------------------------------------------------------
 C_KIND, C_REF, C_PERIOD, C_MIN, C_MAX, C_GAP, C_EF, C_UNREACH, C_FEED_RATE = range(9)
@@ -103,15 +53,6 @@ CS_SC_COMMANDS = 4                            # staircase: commands asked for so
 CS_SIDE = 32                                  # reachability: 1 held at the top, -1 bottom
 CS_QUEUE = 33                                 # then the smc predictor's queue
 OUT_PCT, OUT_ERR, OUT_S, OUT_REACH = range(4)
-
-# --- trace columns (core/simulate.py TRACE_NAMES) -------------------------------------------
-TRACE_COLUMNS = 11
-# --- chain rows (core/batch.py ChainTrace): the estimate, the command (CH_ACTED 0: silent),
-# the decision and the gate's outputs, one row per block
-CH_FORCE, CH_RATE, CH_IQ, CH_IFR, CH_STATUS, CH_ACTED, CH_REQ, CH_S, CH_REACH = range(9)
-CH_REF, CH_APPLIED, CH_REASON, CH_ARMED, CH_GATE_REQ, CH_ENGAGED, CH_ALARM = range(9, 16)
-CH_STOP, CH_ERR, CH_DCODE, CH_DVAL = 16, 17, 18, 19   # the estimate's detail: code, 2 values
-CHAIN_COLUMNS = 21
 
 
 # --- the controllers (core/control) ---------------------------------------------------------
@@ -602,175 +543,6 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
     cs[CS_HELD] = sent
     out[OUT_REACH] = _track_reach(cp, cs, request, out[OUT_ERR])
     out[OUT_PCT] = sent
-
-
-@compiled
-def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
-               clevels: np.ndarray, gp: np.ndarray, gs: np.ndarray, glevels: np.ndarray,
-               t0: float, dt: float, u: np.ndarray, v: np.ndarray, angle: np.ndarray,
-               feed: np.ndarray, work: np.ndarray, inputs: np.ndarray, out: np.ndarray,
-               dec: np.ndarray, cut: np.ndarray, cuts: np.ndarray, ncuts: np.ndarray) -> bool:
-    """One block through the chain (:class:`turning_force.core.loop.ControlChain` states it):
-    the machine's inputs (PE, threading, dial) -> estimator -> gate.on_estimate -> controller
-    -> gate.on_command -> gate.answer (DEC_* into ``dec``); a learning cut that has just been
-    learned sets the controller's reference from the next block on; a cut that ended goes to
-    ``cuts`` (row ncuts[0], while there is room; ncuts[0] counts them all). Returns whether
-    the controller acted (``out`` its command)."""
-    t_end = t0 + u.size * dt
-    gate_inputs(gs, inputs[0], inputs[1], inputs[2])
-    status = estimator_update(ep, es, t0, dt, u, v, angle, feed, work)
-    force, rate = es[ES_F], es[ES_R]
-    gate_on_estimate(gp, gs, force, status, cut)
-    acted = (status == OK or status == SATURATED) and math.isfinite(force)  # noqa: SIM109
-    if acted:
-        controller_update(cp, cs, clevels, force, rate, out)
-        gate_on_command(gs, out[OUT_PCT], t_end, out[OUT_REACH])
-    gate_answer(gp, gs, glevels, t_end, dec)
-    if gs[GS_LEARNED] != 0.0:
-        gs[GS_LEARNED] = 0.0
-        if gs[GS_L_REFUSED] == LEARN_OK:
-            cp[C_REF] = gs[GS_L_LEVEL] * gp[G_TEACH_FRACTION]
-    if cut[CUT_READY] != 0.0:
-        cut[CUT_READY] = 0.0
-        i = int(ncuts[0])
-        if i < cuts.shape[0]:
-            for j in range(CUT_FIELDS):
-                cuts[i, j] = cut[j]
-        ncuts[0] = i + 1
-    return acted
-
-
-@compiled
-def _trace_row(trace: np.ndarray, k: int, t_end: float, truth: np.ndarray, n: int,
-               es: np.ndarray, cp: np.ndarray, last: np.ndarray, applied: float) -> None:
-    """Row k of the core loop's trace (core/simulate.py TRACE_NAMES)."""
-    trace[k, 0], trace[k, 1], trace[k, 2] = t_end, truth[0, n - 1], es[ES_F]
-    trace[k, 3], trace[k, 4], trace[k, 5] = es[ES_R], cp[C_REF], truth[1, n - 1]
-    trace[k, 6], trace[k, 7], trace[k, 8] = truth[2, n - 1], last[0], applied
-    trace[k, 9], trace[k, 10] = last[1], last[2]
-
-
-@compiled
-def _chain_row(rows: np.ndarray, k: int, es: np.ndarray, acted: bool, out: np.ndarray,
-               cp: np.ndarray, gs: np.ndarray, dec: np.ndarray) -> None:
-    """Row k of the chain's rows (CH_*): the estimate, the command (where ``acted``), the
-    decision and the gate's outputs."""
-    rows[k, CH_FORCE], rows[k, CH_RATE] = es[ES_F], es[ES_R]
-    rows[k, CH_IQ], rows[k, CH_IFR], rows[k, CH_STATUS] = es[ES_IQ], es[ES_IFR], es[ES_STATUS]
-    rows[k, CH_ACTED] = 1.0 if acted else 0.0
-    rows[k, CH_REQ], rows[k, CH_S], rows[k, CH_REACH] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
-    rows[k, CH_ERR] = out[OUT_ERR]
-    rows[k, CH_DCODE], rows[k, CH_DVAL], rows[k, CH_DVAL + 1] = (es[ES_DCODE], es[ES_DVAL],
-                                                                 es[ES_DVAL + 1])
-    rows[k, CH_REF] = cp[C_REF]
-    rows[k, CH_APPLIED], rows[k, CH_REASON] = dec[DEC_APPLIED], dec[DEC_REASON]
-    rows[k, CH_ARMED], rows[k, CH_GATE_REQ] = gs[GS_ARMED], gs[GS_REQ]
-    rows[k, CH_ENGAGED], rows[k, CH_ALARM], rows[k, CH_STOP] = (dec[DEC_ENGAGED],
-                                                                dec[DEC_ALARM], dec[DEC_STOP])
-
-
-@entry('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, '
-       'float64, float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], '
-       'float64[::1])')
-def run_core(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_v: Arr,
-             noise_f: Arr, noise_fr: Arr, ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr,
-             gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int, applied: float, last: Arr,
-             trace: Arr, inputs: Arr, cuts: Arr, ncuts: Arr) -> float:
-    """Blocks k0 .. k1 - 1 of the core loop: the plant, then :func:`chain_step`; trace rows
-    k0 .. k1 - 1; noise arrays start at block k0, ``inputs`` (n, 3) at block 0. ``last`` is
-    the command that stands (pct, sliding, reachable). Returns the override applied to the
-    next block."""
-    n = int(pp[P_N])
-    dt = pp[P_DT]
-    u, v = np.empty(n), np.empty(n)
-    angle, feed_rate = np.empty(n), np.empty(n)
-    work = np.empty(2 * n)
-    truth = np.empty((3, n))
-    out = np.full(4, math.nan)
-    dec = np.empty(DEC_FIELDS)
-    cut = np.zeros(CUT_FIELDS)
-    for k in range(k0, k1):
-        lo = (k - k0) * n
-        t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, noise_fr,
-                        lo, u, v, angle, feed_rate, truth)
-        if chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, t0, dt, u, v, angle,
-                      feed_rate, work, inputs[k], out, dec, cut, cuts, ncuts):
-            last[0], last[1], last[2] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
-        _trace_row(trace, k, t0 + n * dt, truth, n, es, cp, last, applied)
-        applied = dec[DEC_APPLIED]
-    return applied
-
-
-@entry('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, '
-       'float64, float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], '
-       'float64[::1], float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], '
-       'float64[:, ::1], float64[:, ::1])')
-def run_core_kept(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_v: Arr,
-                  noise_f: Arr, noise_fr: Arr, ep: Arr, es: Arr, cp: Arr, cs: Arr,
-                  clevels: Arr, gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int,
-                  applied: float, last: Arr, trace: Arr, inputs: Arr, cuts: Arr, ncuts: Arr,
-                  t0s: Arr, u: Arr, v: Arr, angle: Arr, feed_rate: Arr, rows: Arr) -> float:
-    """:func:`run_core`, keeping every block: its first stamp into t0s[k], its samples into
-    row k of u, v, angle and feed_rate, the chain's row (CH_*) into rows[k]."""
-    n = int(pp[P_N])
-    dt = pp[P_DT]
-    work = np.empty(2 * n)
-    truth = np.empty((3, n))
-    out = np.full(4, math.nan)
-    dec = np.empty(DEC_FIELDS)
-    cut = np.zeros(CUT_FIELDS)
-    for k in range(k0, k1):
-        lo = (k - k0) * n
-        uk, vk, ak, fk = u[k], v[k], angle[k], feed_rate[k]
-        t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, noise_fr,
-                        lo, uk, vk, ak, fk, truth)
-        t0s[k] = t0
-        acted = chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, t0, dt, uk, vk, ak, fk,
-                           work, inputs[k], out, dec, cut, cuts, ncuts)
-        if acted:
-            last[0], last[1], last[2] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
-        _chain_row(rows, k, es, acted, out, cp, gs, dec)
-        _trace_row(trace, k, t0 + n * dt, truth, n, es, cp, last, applied)
-        applied = dec[DEC_APPLIED]
-    return applied
-
-
-@entry('int64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-       'float64[::1], float64[::1], float64[::1], float64[::1], float64, float64[:, ::1], '
-       'float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], int64, '
-       'float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[::1])')
-def replay_blocks(ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr, gp: Arr, gs: Arr,
-                  glevels: Arr, t0s: Arr, dt: float, u: Arr, v: Arr, angle: Arr, feed: Arr,
-                  arm_times: Arr, arm_states: Arr, change: int, rows: Arr, inputs: Arr,
-                  cuts: Arr, ncuts: Arr) -> int:
-    """Replay (session/replay.py): blocks of recorded currents (n, m) through
-    :func:`chain_step`, open loop, each decision at the block's end, with the machine's
-    recorded inputs (n, 3); before each block, the gate armed (at the change's time) or
-    disarmed for every change (arm_times, arm_states 1/0, in order, from index ``change`` on)
-    up to the block's end. The chain's rows (CH_*) into rows; returns the index of the first
-    change not made (where the next stretch of blocks goes on)."""
-    n, m = u.shape
-    work = np.empty(2 * m)
-    out = np.full(4, math.nan)
-    dec = np.empty(DEC_FIELDS)
-    cut = np.zeros(CUT_FIELDS)
-    for k in range(n):
-        t0 = t0s[k]
-        t_end = t0 + m * dt
-        while change < arm_times.size and arm_times[change] <= t_end:
-            if arm_states[change] != 0.0 and gs[GS_ARMED] == 0.0:
-                gate_arm(gp, gs, arm_times[change])
-            elif arm_states[change] == 0.0 and gs[GS_ARMED] != 0.0:
-                gs[GS_ARMED] = 0.0
-            change += 1
-        acted = chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, t0, dt, u[k], v[k],
-                           angle[k], feed[k], work, inputs[k], out, dec, cut, cuts, ncuts)
-        _chain_row(rows, k, es, acted, out, cp, gs, dec)
-    return change
 
 
 @entry('void(float64[::1], float64[::1])')
