@@ -140,6 +140,44 @@ def _chain_row(rows: np.ndarray, k: int, es: np.ndarray, acted: bool, out: np.nd
                                                                 dec[DEC_ALARM], dec[DEC_STOP])
 
 
+@compiled
+def _closed_loop(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_v: Arr,
+                 noise_f: Arr, noise_fr: Arr, ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr,
+                 gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int, applied: float, last: Arr,
+                 trace: Arr, inputs: Arr, cuts: Arr, ncuts: Arr, keep: bool, t0s: Arr, u: Arr,
+                 v: Arr, angle: Arr, feed_rate: Arr, rows: Arr) -> float:
+    """The closed loop, the one the core loop and the recorded core run share: blocks k0 ..
+    k1 - 1, the plant then :func:`chain_step`, trace rows k0 .. k1 - 1; noise arrays start at
+    block k0, ``inputs`` (n, 3) at block 0. ``last`` is the command that stands (pct, sliding,
+    reachable). Where ``keep``, every block as well: its first stamp into t0s[k], its samples
+    into row k of u, v, angle and feed_rate, the chain's row (CH_*) into rows[k]. Returns the
+    override applied to the next block."""
+    n = int(pp[P_N])
+    dt = pp[P_DT]
+    uk, vk, ak, fk = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    work = np.empty(2 * n)
+    truth = np.empty((3, n))
+    out = np.full(4, math.nan)
+    dec = np.empty(DEC_FIELDS)
+    cut = np.zeros(CUT_FIELDS)
+    for k in range(k0, k1):
+        lo = (k - k0) * n
+        if keep:
+            uk, vk, ak, fk = u[k], v[k], angle[k], feed_rate[k]
+        t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, noise_fr,
+                        lo, uk, vk, ak, fk, truth)
+        acted = chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, t0, dt, uk, vk, ak, fk,
+                           work, inputs[k], out, dec, cut, cuts, ncuts)
+        if acted:
+            last[0], last[1], last[2] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
+        if keep:
+            t0s[k] = t0
+            _chain_row(rows, k, es, acted, out, cp, gs, dec)
+        _trace_row(trace, k, t0 + n * dt, truth, n, es, cp, last, applied)
+        applied = dec[DEC_APPLIED]
+    return applied
+
+
 @entry('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
        'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
        'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, '
@@ -149,29 +187,11 @@ def run_core(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_v: A
              noise_f: Arr, noise_fr: Arr, ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr,
              gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int, applied: float, last: Arr,
              trace: Arr, inputs: Arr, cuts: Arr, ncuts: Arr) -> float:
-    """Blocks k0 .. k1 - 1 of the core loop: the plant, then :func:`chain_step`; trace rows
-    k0 .. k1 - 1; noise arrays start at block k0, ``inputs`` (n, 3) at block 0. ``last`` is
-    the command that stands (pct, sliding, reachable). Returns the override applied to the
-    next block."""
-    n = int(pp[P_N])
-    dt = pp[P_DT]
-    u, v = np.empty(n), np.empty(n)
-    angle, feed_rate = np.empty(n), np.empty(n)
-    work = np.empty(2 * n)
-    truth = np.empty((3, n))
-    out = np.full(4, math.nan)
-    dec = np.empty(DEC_FIELDS)
-    cut = np.zeros(CUT_FIELDS)
-    for k in range(k0, k1):
-        lo = (k - k0) * n
-        t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, noise_fr,
-                        lo, u, v, angle, feed_rate, truth)
-        if chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, t0, dt, u, v, angle,
-                      feed_rate, work, inputs[k], out, dec, cut, cuts, ncuts):
-            last[0], last[1], last[2] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
-        _trace_row(trace, k, t0 + n * dt, truth, n, es, cp, last, applied)
-        applied = dec[DEC_APPLIED]
-    return applied
+    """:func:`_closed_loop`, keeping the trace only (the core loop)."""
+    nothing = np.empty((0, 0))
+    return _closed_loop(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr, ep, es, cp,
+                        cs, clevels, gp, gs, glevels, k0, k1, applied, last, trace, inputs, cuts,
+                        ncuts, False, np.empty(0), nothing, nothing, nothing, nothing, nothing)
 
 
 @entry('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
@@ -185,29 +205,10 @@ def run_core_kept(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise
                   clevels: Arr, gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int,
                   applied: float, last: Arr, trace: Arr, inputs: Arr, cuts: Arr, ncuts: Arr,
                   t0s: Arr, u: Arr, v: Arr, angle: Arr, feed_rate: Arr, rows: Arr) -> float:
-    """:func:`run_core`, keeping every block: its first stamp into t0s[k], its samples into
-    row k of u, v, angle and feed_rate, the chain's row (CH_*) into rows[k]."""
-    n = int(pp[P_N])
-    dt = pp[P_DT]
-    work = np.empty(2 * n)
-    truth = np.empty((3, n))
-    out = np.full(4, math.nan)
-    dec = np.empty(DEC_FIELDS)
-    cut = np.zeros(CUT_FIELDS)
-    for k in range(k0, k1):
-        lo = (k - k0) * n
-        uk, vk, ak, fk = u[k], v[k], angle[k], feed_rate[k]
-        t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, noise_fr,
-                        lo, uk, vk, ak, fk, truth)
-        t0s[k] = t0
-        acted = chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, t0, dt, uk, vk, ak, fk,
-                           work, inputs[k], out, dec, cut, cuts, ncuts)
-        if acted:
-            last[0], last[1], last[2] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
-        _chain_row(rows, k, es, acted, out, cp, gs, dec)
-        _trace_row(trace, k, t0 + n * dt, truth, n, es, cp, last, applied)
-        applied = dec[DEC_APPLIED]
-    return applied
+    """:func:`_closed_loop`, keeping every block (``run --core --out``)."""
+    return _closed_loop(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr, ep, es, cp,
+                        cs, clevels, gp, gs, glevels, k0, k1, applied, last, trace, inputs, cuts,
+                        ncuts, True, t0s, u, v, angle, feed_rate, rows)
 
 
 @entry('int64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
