@@ -529,7 +529,7 @@ def gate_close(gp: np.ndarray, gs: np.ndarray, cut: np.ndarray) -> None:
 
 @entry('void(float64[::1], float64[::1], float64, float64, float64[::1], float64[::1])')
 def gate_block(gp: Arr, gs: Arr, force: float, status: float, cut: Arr, started: Arr) -> None:
-    """:func:`gate_on_estimate` from Python (:class:`turning_force.core.pmc.OverrideGate`);
+    """:func:`gate_on_estimate` from Python (:class:`turning_force.core.gate.OverrideGate`);
     started[0] 1 where a hold has just started."""
     started[0] = 1.0 if gate_on_estimate(gp, gs, force, int(status), cut) else 0.0
 
@@ -577,10 +577,10 @@ def gate_control(gp: Arr, gs: Arr, t: float, what: int, cut: Arr) -> None:
 class OverrideGate:
     """Decides the override written to the PMC from commands, force estimates and time.
 
-    Its rules, and the shop floor's behaviours after them, are written once, compiled
-    (``gate_*`` above, compiled): this class holds their parameters and
-    state, puts their codes into words, and turns a finished cut into a :class:`CutRecord`
-    and a learning cut into a :class:`Learned` (the teach-in file stays the bridge's)."""
+    Its rules, and the shop floor's behaviours after them, are written once (``gate_*``
+    above, compiled): this class holds their parameters and state, puts their codes into
+    words, and turns a finished cut into a :class:`CutRecord` and a learning cut into a
+    :class:`Learned` (the teach-in file stays the bridge's)."""
 
     def __init__(self, settings: BridgeSettings, t_s: float | None = None) -> None:
         self.settings = settings
@@ -647,14 +647,14 @@ class OverrideGate:
         """The machine's inputs as last read (program enable, threading, operator dial)."""
         self.inputs = inputs
         gate_inputs_from_python(self._state, _flag(inputs.program_enable),
-                                    _flag(inputs.threading),
-                                    math.nan if inputs.operator_dial_pct is None
-                                    else float(inputs.operator_dial_pct))
+                                _flag(inputs.threading),
+                                math.nan if inputs.operator_dial_pct is None
+                                else float(inputs.operator_dial_pct))
 
     def on_command(self, requested_pct: float, t_s: float, reachable: bool | None = None) -> None:
         """The controller's request; ``reachable``, its flag, goes to the cut log."""
         gate_command_from_python(self._state, float(requested_pct), float(t_s),
-                                     -1.0 if reachable is None else float(reachable))
+                                 -1.0 if reachable is None else float(reachable))
 
     def on_estimate(self, force_n: float, status: int = OK) -> bool:
         """Take a force estimate; True when it has just started an overload hold.
@@ -662,8 +662,8 @@ class OverrideGate:
         A saturated or non-finite force counts as over the limit. An invalid or stale estimate
         (it repeats the last good force) says nothing new and is not judged.
         """
-        gate_block(self._params, self._state, float(force_n), float(int(status)),
-                                 self._cut, self._started)
+        gate_block(self._params, self._state, float(force_n), float(int(status)), self._cut,
+                   self._started)
         self._collect()
         return bool(self._started[0])
 

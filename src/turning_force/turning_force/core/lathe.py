@@ -68,7 +68,7 @@ def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.nda
                v: np.ndarray, angle: np.ndarray, feed_rate: np.ndarray,
                truth: np.ndarray) -> float:
     """The lathe for one block at ``override_pct`` (the one source of the simulated plant:
-    :class:`turning_force.core.plant.LathePlant` steps it too).
+    :class:`turning_force.core.lathe.LathePlant` steps it too).
 
     override -> PMC dead time (a ring of ``P_DELAY`` samples) -> CNC servo (Park Eq. 2, first
     order, or Hwang & Chen Eq. 1, second order; zero-order-hold coefficients in direct form II
@@ -163,7 +163,7 @@ def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.nda
 def plant_block(pp: Arr, ps: Arr, times: Arr, depths: Arr, override_pct: float, noise_u: Arr,
                 noise_v: Arr, noise_f: Arr, noise_fr: Arr, lo: int, u: Arr, v: Arr, angle: Arr,
                 feed_rate: Arr, truth: Arr) -> float:
-    """:func:`plant_step` from Python (:class:`turning_force.core.plant.LathePlant`)."""
+    """:func:`plant_step` from Python (:class:`LathePlant`)."""
     return plant_step(pp, ps, times, depths, override_pct, noise_u, noise_v, noise_f, noise_fr,
                       lo, u, v, angle, feed_rate, truth)
 
@@ -241,8 +241,8 @@ class LathePlant:
         u, v, angle, feed_rate = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
         truth = np.empty((3, n))
         t0 = plant_block(self._params, self._state, self._times, self._depths,
-                                   float(override_pct), noise_u, noise_v, noise_f, noise_fr, 0,
-                                   u, v, angle, feed_rate, truth)
+                         float(override_pct), noise_u, noise_v, noise_f, noise_fr, 0, u, v,
+                         angle, feed_rate, truth)
         block = CurrentBlock(float(t0), self._dt, u, v, angle, feed_rate)
         inputs = s.inputs_at(block.t0_s + n * self._dt)
         return PlantBlock(block, truth[0], truth[1], truth[2], override_pct, inputs)

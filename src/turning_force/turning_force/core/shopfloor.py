@@ -30,9 +30,9 @@ the controller asked for, except the stand-downs to the programmed feed (threadi
 not enabling the option, a learning cut) and the feed floor, which is off by default.
 
 The behaviours are written once, compiled, with the safety gate (``gate_*`` in
-:mod:`turning_force.core.kernel.loops`, run by :class:`turning_force.core.pmc.OverrideGate` and by
-the compiled loops), so that the core loop, replay and the bridge decide alike. This module
-holds their settings, the teach-in file and the records they give.
+:mod:`turning_force.core.gate`, run by its ``OverrideGate`` and by the compiled loops), so that
+the core loop, replay and the bridge decide alike. This module holds their settings, the
+teach-in file and the records they give.
 """
 
 from __future__ import annotations

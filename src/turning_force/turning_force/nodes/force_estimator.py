@@ -2,7 +2,7 @@
 
 Subscribes ``servo/currents`` (turning_force_msgs/ServoCurrents); publishes ``force/estimate``
 (turning_force_msgs/ForceEstimate), one per block. The work is
-:class:`turning_force.core.estimation.ForceEstimator`; parameters are
+:class:`turning_force.core.estimator.ForceEstimator`; parameters are
 :class:`turning_force.core.estimation.EstimatorSettings` (``ros2 param describe`` lists them
 with units and ranges). A block with non-finite samples or an out-of-order stamp is published
 as ``STATUS_INVALID_INPUT`` with the last good, finite force (stamped as the block it

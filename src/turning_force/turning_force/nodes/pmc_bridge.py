@@ -3,7 +3,7 @@
 Subscribes ``control/feed_command`` (turning_force_msgs/FeedCommand) and ``force/estimate``
 (turning_force_msgs/ForceEstimate); publishes ``pmc/feed_override``
 (turning_force_msgs/FeedOverride) and writes the PMC backend. The decisions (disarmed,
-watchdog, invalid command, overload hold) are :class:`turning_force.core.pmc.OverrideGate`'s;
+watchdog, invalid command, overload hold) are :class:`turning_force.core.gate.OverrideGate`'s;
 parameters: :class:`turning_force.core.pmc.BridgeSettings`, and ``autostart``.
 
 Lifecycle, the ROS 2 convention for hardware drivers (``~/change_state``, ``~/get_state``, as

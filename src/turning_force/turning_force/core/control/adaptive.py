@@ -9,7 +9,7 @@ process gain ``K_p = F / f_a`` [N per mm/rev], so that the loop gain stays at
 ``f_a`` is the controller's own first-order servo model of its commands; it does not know
 which override level the PMC applied, as a conventional controller does not.
 
-The law runs compiled (``_adaptive`` in :mod:`turning_force.core.kernel.loops`); this module
+The law runs compiled (``_adaptive`` in :mod:`.laws`); this module
 reads its settings into it.
 """
 

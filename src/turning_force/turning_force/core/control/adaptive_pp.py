@@ -21,7 +21,7 @@ response to the continuous request, the model goes wrong and the loop limit-cycl
 
 The initial model: the servo's and the process's poles (``exp(-T / tau)``) and a static gain
 of ``pp_gain0_n_per_pct``. The law runs compiled (``_pole_placement`` in
-:mod:`turning_force.core.kernel.loops`, the estimator of :mod:`.rls`, the Diophantine equation
+:mod:`.laws`, the estimator of :mod:`.rls`, the Diophantine equation
 solved by elimination); this module reads its settings into it.
 """
 

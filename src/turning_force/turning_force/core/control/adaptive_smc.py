@@ -16,7 +16,7 @@ becomes ``[1, 0]`` so that ``q_b = b1``. Remark 2: if ``|A(1) / B(1)|`` reaches
 ``asmc_freeze_limit``, or both b's vanish, ``u`` is held (freezing).
 
 The law runs compiled (``_asmc`` and ``_asmc_control`` in
-:mod:`turning_force.core.kernel.loops`, the estimator of :mod:`.rls`); this module reads its
+:mod:`.laws`, the estimator of :mod:`.rls`); this module reads its
 settings into it.
 """
 

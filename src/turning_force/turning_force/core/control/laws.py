@@ -3,7 +3,7 @@ recursive least squares, and what every law shares (the guard on its state, the
 error-feedback quantiser, the reachability flag), in ``controller_update``.
 
 Each law's module in this package states the law and reads its settings into these
-functions' parameters (``C_*``); :class:`turning_force.core.control.Controller` holds the
+functions' parameters (``C_*``); :class:`turning_force.core.control.base.Controller` holds the
 parameters and the state (``CS_*``) and runs them one period at a time, the compiled loops
 (:mod:`turning_force.core.kernel.loops`) many periods at once.
 """

@@ -5,7 +5,7 @@ limit, the integral is set so that it sits on the limit, and it leaves the limit
 the error changes sign.
 
 What commercial adaptive-feed options run. The law runs compiled (``_pi`` in
-:mod:`turning_force.core.kernel.loops`); this module reads its settings into it.
+:mod:`.laws`); this module reads its settings into it.
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ it was designed for. With no dead time and a first-order servo the two models ar
 cutting (the force above ``ENGAGED_FRACTION`` of the reference) and the model feeds.
 
 The models and the predictor run compiled, inside the sliding mode law
-(``controller_update`` of :mod:`turning_force.core.kernel.loops`); this module gives their
+(``controller_update`` of :mod:`.laws`); this module gives their
 matrices.
 """
 

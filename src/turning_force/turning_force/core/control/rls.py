@@ -22,7 +22,7 @@ absurd sample must not leave the model broken for good.
 loses its symmetry in rounding, and with forgetting down at ``f_min`` (``P`` divided by 0.1 a
 sample) the two forms part: with the other, Hwang & Chen's Example 1 settles 800 N off.
 
-The estimator runs compiled (``_rls_update`` in :mod:`turning_force.core.kernel.loops`, four
+The estimator runs compiled (``_rls_update`` in :mod:`.laws`, four
 parameters); :func:`fill` reads a law's choices into it.
 """
 

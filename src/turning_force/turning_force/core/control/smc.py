@@ -25,7 +25,7 @@ the servo's (or a second-order servo's equivalent ``2 zeta / w_n``). With no dea
 a first-order servo the predictor changes nothing.
 
 The law runs compiled (``_smc`` and the predictor's models in ``controller_update``,
-:mod:`turning_force.core.kernel.loops`); this module reads its settings into it.
+:mod:`.laws`); this module reads its settings into it.
 """
 
 from __future__ import annotations

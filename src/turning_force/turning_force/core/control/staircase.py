@@ -13,7 +13,7 @@ estimate it may act on), so a level is held for ``round(staircase_step_s /
 control_period_s)`` commands. A non-finite force does not restart the script: its place is
 not state a bad sample can spoil.
 
-The law runs compiled (``_staircase`` in :mod:`turning_force.core.kernel.loops`); this module
+The law runs compiled (``_staircase`` in :mod:`.laws`); this module
 reads its settings into it.
 """
 
