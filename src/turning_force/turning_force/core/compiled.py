@@ -25,8 +25,8 @@ from numba import njit
 
 from turning_force.core.codecache import cache_dir, cache_is_warm
 
-__all__ = ['Arr', 'compiled', 'entry', 'isclose', 'npsign', 'pairwise_sum', 'pymax', 'pymin',
-           'pymod', 'quantise']
+__all__ = ['Arr', 'compiled', 'delayed', 'entry', 'isclose', 'npsign', 'pairwise_sum', 'pymax',
+           'pymin', 'pymod', 'quantise']
 
 # Before any function is decorated: numba keys its cache's place on this at decoration.
 numba.config.CACHE_DIR = str(cache_dir())   # type: ignore[attr-defined]
@@ -182,3 +182,19 @@ def quantise(levels: np.ndarray, continuous: bool, pct: float) -> float:
 
 
 # --- the feed drive (core/drive.py) ---------------------------------------------------------
+
+
+@compiled
+def delayed(state: np.ndarray, queue_at: int, index_slot: int, length: int,
+            value: float) -> float:
+    """A dead time of ``length`` samples: ``value`` goes in, the value put in ``length`` samples
+    ago comes out (``length`` 0: ``value`` itself). The line is state[queue_at:queue_at +
+    length], its next place state[index_slot]: the PMC's dead time in the plant and its model
+    in the sliding mode law's Smith predictor."""
+    if length <= 0:
+        return value
+    q = int(state[index_slot])
+    out = state[queue_at + q]
+    state[queue_at + q] = value
+    state[index_slot] = (q + 1) % length
+    return out

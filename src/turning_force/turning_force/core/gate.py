@@ -534,19 +534,6 @@ def gate_block(gp: Arr, gs: Arr, force: float, status: float, cut: Arr, started:
     started[0] = 1.0 if gate_on_estimate(gp, gs, force, int(status), cut) else 0.0
 
 
-@entry('void(float64[::1], float64, float64, float64)')
-def gate_inputs_from_python(gs: Arr, program_enable: float, threading: float,
-                            dial: float) -> None:
-    """:func:`gate_inputs` from Python."""
-    gate_inputs(gs, program_enable, threading, dial)
-
-
-@entry('void(float64[::1], float64, float64, float64)')
-def gate_command_from_python(gs: Arr, requested: float, t: float, reachable: float) -> None:
-    """:func:`gate_on_command` from Python."""
-    gate_on_command(gs, requested, t, reachable)
-
-
 @entry('void(float64[::1], float64[::1], float64[::1], float64, float64[::1], int64)')
 def gate_step(gp: Arr, gs: Arr, levels: Arr, t: float, dec: Arr, answer: int) -> None:
     """From Python: :func:`gate_answer` (``answer`` 1) or :func:`gate_decide`."""
@@ -646,15 +633,15 @@ class OverrideGate:
     def on_inputs(self, inputs: InputValues) -> None:
         """The machine's inputs as last read (program enable, threading, operator dial)."""
         self.inputs = inputs
-        gate_inputs_from_python(self._state, _flag(inputs.program_enable),
-                                _flag(inputs.threading),
-                                math.nan if inputs.operator_dial_pct is None
-                                else float(inputs.operator_dial_pct))
+        dial = inputs.operator_dial_pct
+        self._state[[GS_PE, GS_TH, GS_DIAL]] = (_flag(inputs.program_enable),
+                                                _flag(inputs.threading),
+                                                math.nan if dial is None else float(dial))
 
     def on_command(self, requested_pct: float, t_s: float, reachable: bool | None = None) -> None:
         """The controller's request; ``reachable``, its flag, goes to the cut log."""
-        gate_command_from_python(self._state, float(requested_pct), float(t_s),
-                                 -1.0 if reachable is None else float(reachable))
+        self._state[[GS_REQ, GS_CMD_T, GS_REACH]] = (
+            float(requested_pct), float(t_s), -1.0 if reachable is None else float(reachable))
 
     def on_estimate(self, force_n: float, status: int = OK) -> bool:
         """Take a force estimate; True when it has just started an overload hold.

@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core import lti
-from turning_force.core.compiled import Arr, compiled, entry, pymod
+from turning_force.core.compiled import Arr, compiled, delayed, entry, pymod
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.feeddrive import friction_current
 from turning_force.core.plant import PlantBlock, PlantSettings
@@ -97,13 +97,7 @@ def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.nda
     linear = pp[P_LINEAR] != 0.0
     for i in range(n):
         t = float(k + i) * dt
-        if delay > 0:
-            q = int(ps[PS_QIDX])
-            servo_in = ps[PS_QUEUE + q]
-            ps[PS_QUEUE + q] = commanded
-            ps[PS_QIDX] = (q + 1) % delay
-        else:
-            servo_in = commanded
+        servo_in = delayed(ps, PS_QUEUE, PS_QIDX, delay, commanded)
         # Direct form II transposed (scipy's lfilter), a[0] == 1.
         if order == 1:
             fr = z0 + sb0 * servo_in

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from turning_force.core.compiled import Arr, compiled, entry, pymax, pymin, quantise
+from turning_force.core.compiled import Arr, compiled, delayed, entry, pymax, pymin, quantise
 
 # --- controller parameters ------------------------------------------------------------------
 C_KIND, C_REF, C_PERIOD, C_MIN, C_MAX, C_GAP, C_EF, C_UNREACH, C_FEED_RATE = range(9)
@@ -40,7 +40,6 @@ SMC, ADAPTIVE, ASMC, POLE_PLACEMENT, PI, STAIRCASE = range(6)
 PARK, INTEGRAL, NONLINEAR = range(3)
 # controller state
 CS_HELD, CS_CARRY, CS_PINNED, CS_RESETS = range(4)
-CS_A = 4                                      # law state from here
 # smc: integral, predictor gain, machine x (3), design x (3), queue index
 CS_INT, CS_PGAIN, CS_MX, CS_DX, CS_QIDX = 4, 5, 6, 9, 12
 # pi / adaptive
@@ -530,13 +529,7 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
         level = quantise(levels, continuous, sent)
         mnx, dnx, qlen = int(cp[C_MNX]), int(cp[C_DNX]), int(cp[C_QLEN])
         for _ in range(int(cp[C_STEPS])):
-            if qlen > 0:
-                q = int(cs[CS_QIDX])
-                servo_in = cs[CS_QUEUE + q]
-                cs[CS_QUEUE + q] = level
-                cs[CS_QIDX] = (q + 1) % qlen
-            else:
-                servo_in = level
+            servo_in = delayed(cs, CS_QUEUE, CS_QIDX, qlen, level)
             _model_advance(cp, cs, CS_MX, mnx, C_MPHI, C_MGAM, servo_in)
         for _ in range(int(cp[C_STEPS])):
             _model_advance(cp, cs, CS_DX, dnx, C_DPHI, C_DGAM, level)

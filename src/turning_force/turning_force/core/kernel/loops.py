@@ -65,8 +65,6 @@ from turning_force.core.gate import (
 )
 from turning_force.core.lathe import P_DT, P_N, plant_step
 
-# --- trace columns (core/simulate.py TRACE_NAMES) -------------------------------------------
-TRACE_COLUMNS = 11
 # --- chain rows (core/batch.py ChainTrace): the estimate, the command (CH_ACTED 0: silent),
 # the decision and the gate's outputs, one row per block
 CH_FORCE, CH_RATE, CH_IQ, CH_IFR, CH_STATUS, CH_ACTED, CH_REQ, CH_S, CH_REACH = range(9)
