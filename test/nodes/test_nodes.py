@@ -234,7 +234,7 @@ def bridge_probe(context, executor):
 
 def call(node, spin_until, service):
     client = node.create_client(Trigger, service)
-    assert client.wait_for_service(timeout_sec=10.0)
+    assert client.wait_for_service(timeout_sec=30.0)
     future = client.call_async(Trigger.Request())
     assert spin_until(future.done)
     return future.result()

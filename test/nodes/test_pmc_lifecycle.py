@@ -75,7 +75,7 @@ class Operator:
 
     def call(self, kind, service: str, request):
         client = self.node.create_client(kind, service)
-        assert client.wait_for_service(timeout_sec=10.0)
+        assert client.wait_for_service(timeout_sec=30.0)
         future = client.call_async(request)
         assert self.spin_until(future.done)
         return future.result()

@@ -86,7 +86,7 @@ class Controller:
 
     def arm(self) -> bool:
         client = self.node.create_client(Trigger, '/pmc_bridge/arm')
-        assert client.wait_for_service(timeout_sec=10.0)
+        assert client.wait_for_service(timeout_sec=30.0)
         future = client.call_async(Trigger.Request())
         assert self.spin_until(future.done)
         return future.result().success
