@@ -16,10 +16,12 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 # pytest-xdist runs the suite in several processes: each gets a DDS domain of its own (set before
-# any test imports rclpy), so that one worker's graph never hears another's.
+# any test imports rclpy), so that one worker's graph never hears another's. Two suites run at
+# once on one machine (two checkouts) keep apart with TURNING_FORCE_TEST_DOMAIN (default 40).
 _WORKER = os.environ.get('PYTEST_XDIST_WORKER', '')
 if _WORKER.startswith('gw'):
-    os.environ['ROS_DOMAIN_ID'] = str(40 + int(_WORKER[2:]))
+    _BASE = int(os.environ.get('TURNING_FORCE_TEST_DOMAIN', '40'))
+    os.environ['ROS_DOMAIN_ID'] = str(_BASE + int(_WORKER[2:]))
 
 
 @pytest.fixture(scope='session')
