@@ -2,14 +2,15 @@
 numba's own switch (``NUMBA_DISABLE_JIT=1``: the functions are the Python they are written in,
 so a compiled caller looks the probe up as it would the function). Prints what reached it.
 
-    python one_source_probe.py PATH FUNCTION[@LAW] ...   (test_one_source.py runs it)
+    python one_source_probe.py PATH MODULE:FUNCTION[@LAW] ...   (test_one_source.py runs it)
 
-One line per function: ``reached FUNCTION on PATH`` or ``not reached: FUNCTION on PATH``; with
+One line per function: ``reached MODULE:FUNCTION on PATH`` or ``not reached: ...``; with
 ``@LAW``, the run's control law is LAW.
 """
 
 from __future__ import annotations
 
+import importlib
 import sys
 import tempfile
 from pathlib import Path
@@ -25,17 +26,19 @@ class Reached(Exception):
     """The probe was called."""
 
 
-def bound(function: str) -> list[tuple[ModuleType, object]]:
-    """Every module of the package that binds the compiled function ``function`` (its own, and
-    those that import it), with the function: a compiled caller looks it up in its module."""
+def bound(spec: str) -> list[tuple[ModuleType, str, object]]:
+    """Every module that holds the compiled function ``MODULE:FUNCTION`` (its own, those that
+    import it, the laws' generated dispatch), under whichever name: a compiled caller looks it
+    up in its module."""
     from turning_force.core import kernel
 
     kernel.load()
-    places = [(module, vars(module)[function]) for name, module in list(sys.modules.items())
-              if name.startswith('turning_force.') and function in vars(module)]
-    assert places, function
-    original = places[0][1]
-    assert all(value is original for _, value in places), function
+    module_name, _, function = spec.partition(':')
+    original = getattr(importlib.import_module(module_name), function)
+    places = [(module, key, value) for name, module in list(sys.modules.items())
+              if name.startswith('turning_force') and module is not None
+              for key, value in list(vars(module).items()) if value is original]
+    assert places, spec
     return places
 
 
@@ -48,8 +51,8 @@ def main() -> None:
         def probe(*args: object, name: str = function) -> None:
             raise Reached(name)
 
-        for module, _ in places:
-            setattr(module, function, probe)
+        for module, key, _ in places:
+            setattr(module, key, probe)
         try:
             run(path, function, law)
         except Reached:
@@ -57,8 +60,8 @@ def main() -> None:
         else:
             print(f'not reached: {spec} on {path}', flush=True)
         finally:
-            for module, original in places:
-                setattr(module, function, original)
+            for module, key, original in places:
+                setattr(module, key, original)
 
 
 def run(path: str, function: str, law: str) -> None:
@@ -78,7 +81,7 @@ def run(path: str, function: str, law: str) -> None:
             result = sweep(FIG8, ['force_controller.smc_lambda_per_s=5:10:2'],
                            sets=[s for s in sets if s != '--set'], jobs=1, progress=False)
             errors = ' '.join(map(str, getattr(result, 'errors', []) or []))
-            if function in errors or 'Reached' in errors:
+            if function.partition(':')[2] in errors or 'Reached' in errors:
                 raise Reached(function)
         else:
             raise SystemExit(f'unknown path {path!r}')

@@ -1,9 +1,10 @@
 """One source: every algorithm is one compiled function, and every path of the product runs it.
 
 For each path (the node graph, the core loop, replay, a sweep), a probe replaces one function at
-a time in the kernel's module under ``NUMBA_DISABLE_JIT=1`` (where a compiled caller looks it up
-as the Python it is) and the path is run: the probe must be reached, so no second copy of the
-algorithm serves that path. The plant is not on replay's path (it replays recorded currents).
+a time, wherever a module holds it, under ``NUMBA_DISABLE_JIT=1`` (where a compiled caller looks
+it up as the Python it is) and the path is run: the probe must be reached, so no second copy of
+the algorithm serves that path. The plant is not on replay's path (it replays recorded
+currents). Each law's ``step`` is probed with that law chosen.
 
 """
 
@@ -15,10 +16,13 @@ from pathlib import Path
 import pytest
 
 PROBE = Path(__file__).with_name('one_source_probe.py')
-LAWS = ['_smc', '_pi@pi', '_adaptive@adaptive', '_asmc@adaptive_smc',
-        '_pole_placement@adaptive_pp', '_staircase@staircase']
-ALGORITHMS = ['plant_step', 'estimator_update', 'controller_update', *LAWS,
-              'gate_on_estimate', 'gate_answer', '_observe', '_judge']
+LAWS = [f'turning_force.core.control.laws.{law}:step@{law}'
+        for law in ('smc', 'pi', 'adaptive', 'adaptive_smc', 'adaptive_pp', 'staircase')]
+ALGORITHMS = ['turning_force.core.lathe:plant_step',
+              'turning_force.core.estimator:estimator_update',
+              'turning_force.core.control.update:controller_update', *LAWS,
+              'turning_force.core.gate:gate_on_estimate', 'turning_force.core.gate:gate_answer',
+              'turning_force.core.gate:_observe', 'turning_force.core.gate:_judge']
 
 
 @pytest.mark.parametrize('path', ['run', 'run-core', 'replay', 'sweep'])
@@ -28,6 +32,6 @@ def test_every_path_reaches_each_algorithm_s_one_function(path):
                            capture_output=True, text=True, timeout=300, check=False)
     assert probe.returncode == 0, probe.stderr[-3000:]
     lines = [line for line in probe.stdout.splitlines() if 'reached' in line]
-    expected = [f'not reached: {name} on {path}' if (path, name) == ('replay', 'plant_step')
+    expected = [f'not reached: {name} on {path}' if (path, name) == ('replay', ALGORITHMS[0])
                 else f'reached {name} on {path}' for name in ALGORITHMS]
     assert lines == expected

@@ -5,14 +5,16 @@ import math
 import numpy as np
 import pytest
 
-from turning_force.core.control import ControllerSettings, make_controller
-from turning_force.core.control import laws as jit
+from turning_force.core.control import ControllerSettings, make_controller, rls
+from turning_force.core.control.laws import adaptive_pp, adaptive_smc
 from turning_force.core.errors import ConfigError
 
 
 def theta(controller):
     """An adaptive law's model estimate (the compiled state's RLS slots)."""
-    return controller.arrays[1][jit.CS_THETA:jit.CS_THETA + 4].copy()
+    law = adaptive_pp if controller.name == 'adaptive_pp' else adaptive_smc
+    at = law.S_RLS + rls.S_THETA
+    return controller.arrays[1][at:at + 4].copy()
 
 
 def smc_settings(**changes):
@@ -188,7 +190,7 @@ def test_pole_placement_design_puts_the_poles_where_asked():
     controller = make_controller(c)
     a1, a2, b0, b1 = theta(controller)
     solution = np.empty(4)
-    assert jit.pp_design(controller.arrays[0], a1, a2, b0, b1, solution)
+    assert adaptive_pp.pp_design(controller.arrays[0], a1, a2, b0, b1, solution)
     r1, *s = solution
     closed = np.polymul(np.polymul([1, a1, a2], [1, -1]), [1, r1])
     closed = np.polyadd(closed, np.polymul([0, b0, b1], s))
@@ -198,7 +200,7 @@ def test_pole_placement_design_puts_the_poles_where_asked():
     np.testing.assert_allclose(closed, [1, m1, m2, 0, 0], atol=1e-12)
     # A and B with a common root (B = b (1 - 0.5 q^-1), A = (1 - 0.5 q^-1)(1 - 0.2 q^-1)):
     # the system is singular, and the law holds its feed rather than divide by it.
-    assert not jit.pp_design(controller.arrays[0], -0.7, 0.1, 1.0, -0.5, solution)
+    assert not adaptive_pp.pp_design(controller.arrays[0], -0.7, 0.1, 1.0, -0.5, solution)
 
 
 def test_pole_placement_adaptive_settles_on_the_reference():
@@ -241,14 +243,16 @@ def test_a_law_recovers_from_an_absurd_force(name, absurd_n):
 
 
 def rls_arrays(theta0, p0, **options):
-    """The compiled estimator's parameters (from the adaptive laws' own fill) and state."""
-    from turning_force.core.control import rls
-
-    p = np.zeros(jit.C_SIZE)
-    rls.fill(jit, p, theta0, p0, **options)
-    s = np.zeros(jit.CS_QUEUE)
-    jit._rls_restart(p, s)
+    """The compiled estimator's parameters (as the adaptive laws fill them) and state, at
+    offset 0 in arrays of their own."""
+    p = np.array(rls.params(theta0, p0, **options))
+    s = np.zeros(rls.STATE)
+    rls.restart(p, s, 0, 0)
     return p, s
+
+
+def fit(p, s, *phi_y):
+    rls.update(p, s, 0, 0, *phi_y)
 
 
 def test_rls_restarts_on_non_finite_data_and_fits_again():
@@ -258,28 +262,28 @@ def test_rls_restarts_on_non_finite_data_and_fits_again():
     rng = np.random.default_rng(3)
     for _ in range(12):
         phi = rng.normal(size=4)
-        jit._rls_update(p, s, *phi, float(phi @ true))
-    np.testing.assert_allclose(s[jit.CS_THETA:jit.CS_THETA + 4], true, rtol=1e-6)
-    jit._rls_update(p, s, 1.0, math.nan, 0.0, 0.0, 1.0)
-    assert s[jit.CS_RLS_RESTARTS] == 1 and np.all(s[jit.CS_THETA:jit.CS_THETA + 4] == 0.0)
+        fit(p, s, *phi, float(phi @ true))
+    np.testing.assert_allclose(s[rls.S_THETA:rls.S_THETA + 4], true, rtol=1e-6)
+    fit(p, s, 1.0, math.nan, 0.0, 0.0, 1.0)
+    assert s[rls.S_RESTARTS] == 1 and np.all(s[rls.S_THETA:rls.S_THETA + 4] == 0.0)
     for _ in range(12):
         phi = rng.normal(size=4)
-        jit._rls_update(p, s, *phi, float(phi @ true))
-    np.testing.assert_allclose(s[jit.CS_THETA:jit.CS_THETA + 4], true, rtol=1e-6)
+        fit(p, s, *phi, float(phi @ true))
+    np.testing.assert_allclose(s[rls.S_THETA:rls.S_THETA + 4], true, rtol=1e-6)
 
 
 def test_rls_dead_zone_and_projection_leave_the_model_alone():
     p, s = rls_arrays([1.0, 0.0, 0.0, 0.0], 100.0, dead_zone=0.5)
-    jit._rls_update(p, s, 1.0, 0.0, 0.0, 0.0, 1.4)     # error 0.4: inside the dead zone
-    assert s[jit.CS_THETA] == 1.0
-    jit._rls_update(p, s, 1.0, 0.0, 0.0, 0.0, 2.0)
-    assert s[jit.CS_THETA] > 1.0
+    fit(p, s, 1.0, 0.0, 0.0, 0.0, 1.4)     # error 0.4: inside the dead zone
+    assert s[rls.S_THETA] == 1.0
+    fit(p, s, 1.0, 0.0, 0.0, 0.0, 2.0)
+    assert s[rls.S_THETA] > 1.0
     # The projection: theta = [a1, a2, b0, b1] must keep B(1) > 0 and A(1) > 0.
     p, s = rls_arrays([-0.5, 0.0, 1.0, 1.0], 100.0, positive_static_gain=True)
-    jit._rls_update(p, s, 0.0, 0.0, 1.0, 1.0, -50.0)   # would turn B(1) negative
-    np.testing.assert_array_equal(s[jit.CS_THETA:jit.CS_THETA + 4], [-0.5, 0.0, 1.0, 1.0])
-    jit._rls_update(p, s, 0.0, 0.0, 1.0, 1.0, 3.0)     # B(1) stays positive: taken
-    assert s[jit.CS_THETA + 2] + s[jit.CS_THETA + 3] > 2.0
+    fit(p, s, 0.0, 0.0, 1.0, 1.0, -50.0)   # would turn B(1) negative
+    np.testing.assert_array_equal(s[rls.S_THETA:rls.S_THETA + 4], [-0.5, 0.0, 1.0, 1.0])
+    fit(p, s, 0.0, 0.0, 1.0, 1.0, 3.0)     # B(1) stays positive: taken
+    assert s[rls.S_THETA + 2] + s[rls.S_THETA + 3] > 2.0
 
 
 def test_the_settings_choices_are_the_registry():

@@ -18,7 +18,7 @@ def staircase(**changes):
 
 
 def test_registered_as_a_law():
-    from turning_force.core.control import staircase as module
+    from turning_force.core.control.laws import staircase as module
 
     assert CONTROLLERS['staircase'] is module.LAW
     assert staircase().name == 'staircase'

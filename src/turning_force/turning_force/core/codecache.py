@@ -2,7 +2,8 @@
 
 ``$NUMBA_CACHE_DIR`` (or the user's cache folder, ``$XDG_CACHE_HOME`` or ``~/.cache``, under
 ``turning_force/numba``), in a folder named for the hash of every source of
-``turning_force.core`` and numba's version. numba checks only the file that defines a function
+``turning_force.core``, of the control laws other packages install (the ``turning_force.laws``
+entry points) and numba's version. numba checks only the file that defines a function
 when it reads its cache, not the files of the functions it calls: a folder per version of the
 whole core means a change anywhere never pairs with old machine code, and nothing is ever
 written into the installed package.
@@ -13,22 +14,46 @@ from __future__ import annotations
 import functools
 import hashlib
 import importlib.metadata
+import importlib.util
 import os
 from pathlib import Path
 
-__all__ = ['STAMP', 'cache_dir', 'cache_is_warm', 'source_hash']
+__all__ = ['LAW_GROUP', 'STAMP', 'cache_dir', 'cache_is_warm', 'installed_laws',
+           'source_hash']
+
+LAW_GROUP = 'turning_force.laws'
 
 STAMP = 'turning_force_kernel.sha256'
 CORE = Path(__file__).resolve().parent
 
 
 @functools.cache
+def installed_laws() -> tuple[tuple[str, str, str], ...]:
+    """The laws other packages install: (name, module, distribution) of each
+    ``turning_force.laws`` entry point, by name."""
+    found = []
+    for point in importlib.metadata.entry_points(group=LAW_GROUP):
+        dist = point.dist.name if point.dist is not None else '?'
+        found.append((point.name, point.value.partition(':')[0].strip(), dist))
+    return tuple(sorted(found))
+
+
+@functools.cache
 def source_hash() -> str:
-    """The SHA-256 of numba's version and every source of ``turning_force.core``."""
+    """The SHA-256 of numba's version, every source of ``turning_force.core`` and the module
+    of every installed law."""
     digest = hashlib.sha256(importlib.metadata.version('numba').encode())
     for path in sorted(CORE.rglob('*.py')):
         digest.update(path.relative_to(CORE).as_posix().encode())
         digest.update(path.read_bytes())
+    for name, module, _ in installed_laws():
+        digest.update(f'{name}={module}'.encode())
+        try:
+            spec = importlib.util.find_spec(module)
+        except (ImportError, ValueError):   # the registry says what is wrong with it
+            continue
+        if spec is not None and spec.origin and Path(spec.origin).is_file():
+            digest.update(Path(spec.origin).read_bytes())
     return digest.hexdigest()
 
 

@@ -2,57 +2,115 @@
 and the scalar rules every compiled algorithm shares.
 
 Each algorithm is written once, in the module of its stage of the signal chain (the plant in
-:mod:`.plant`, the estimator in :mod:`.estimation`, the PMC gate in :mod:`.pmc`, ...), as
-functions decorated here: :func:`compiled` for the algorithm's own functions, :func:`entry` for
-the few that Python calls, with their signatures. Under ``NUMBA_DISABLE_JIT=1`` they run as the
-Python they are written in.
+:mod:`.lathe`, the estimator in :mod:`.estimator`, each control law in its module of
+:mod:`.control.laws`, the PMC gate in :mod:`.gate`), as functions decorated here:
+:func:`compiled` for the algorithm's own functions, :func:`entry` for the few that Python calls,
+with their signatures. Under ``NUMBA_DISABLE_JIT=1`` they run as the Python they are written in.
 
-numba's machine code goes to :func:`turning_force.core.codecache.cache_dir`, never into the
-installed package.
+Decorating imports no numba: a module of compiled code costs what its Python costs to import,
+so that reading settings (which live beside the code that reads them) stays cheap.
+:func:`activate` (called by :func:`turning_force.core.kernel.load`) imports numba, makes every
+function decorated so far a numba dispatcher, in its module and in every module that imported
+it by name, and compiles (or loads from the cache) the entry points; what is decorated after it
+is compiled as it is defined. numba's machine code goes to
+:func:`turning_force.core.codecache.cache_dir`, never into the installed package.
 """
 
 from __future__ import annotations
 
 import math
 import sys
+import threading
 import time
 from collections.abc import Callable
 from typing import Any, TypeVar, cast
 
-import numba
 import numpy as np
-from numba import njit
 
 from turning_force.core.codecache import cache_dir, cache_is_warm
 
-__all__ = ['Arr', 'compiled', 'delayed', 'entry', 'isclose', 'npsign', 'pairwise_sum', 'pymax',
-           'pymin', 'pymod', 'quantise']
-
-# Before any function is decorated: numba keys its cache's place on this at decoration.
-numba.config.CACHE_DIR = str(cache_dir())   # type: ignore[attr-defined]
-# A cold cache: the modules that import this one compile their entry points as they are imported
-# (turning_force.core.kernel.load says when they are done).
-COMPILE_START_S = time.perf_counter()
-if not cache_is_warm():
-    print(f'turning_force: compiling the kernel into {cache_dir()} (once per install and '
-          'version: 15 to 60 s)', file=sys.stderr, flush=True)
+__all__ = ['Arr', 'activate', 'active', 'compiled', 'delayed', 'entry', 'isclose', 'npsign',
+           'pairwise_sum', 'pymax', 'pymin', 'pymod', 'quantise']
 
 _F = TypeVar('_F', bound=Callable[..., Any])
 Arr = np.ndarray   # float64, C-contiguous: what the entry points' signatures say
+
+# What is decorated before activate(): each function with its entry signature ('' if none).
+_pending: list[tuple[Callable[..., Any], str]] = []
+_active = False
+_lock = threading.RLock()
+_OPTIONS: dict[str, Any] = {'cache': True, 'error_model': 'numpy', 'nogil': True}
 
 
 def compiled(function: _F) -> _F:
     """numba's options for every compiled function: cached on disk, numpy's error model (a
     division by zero gives IEEE infinities), the GIL released. Compiled at its first call."""
-    return cast(_F, njit(cache=True, error_model='numpy', nogil=True)(function))
+    with _lock:
+        if _active:
+            return cast(_F, _jit(function, ''))
+        _pending.append((function, ''))
+        return function
 
 
 def entry(signature: str) -> Callable[[_F], _F]:
-    """An entry point from Python: compiled for ``signature`` when its module is imported (or
-    loaded from the cache), so that no call from Python compiles on its way."""
+    """An entry point from Python: compiled for ``signature`` (or loaded from the cache) when
+    the code is activated, so that no call from Python compiles on its way."""
     def decorate(function: _F) -> _F:
-        return cast(_F, njit(signature, cache=True, error_model='numpy', nogil=True)(function))
+        with _lock:
+            if _active:
+                return cast(_F, _jit(function, signature))
+            _pending.append((function, signature))
+            return function
     return decorate
+
+
+def active() -> bool:
+    """Whether :func:`activate` has run in this process."""
+    return _active
+
+
+def activate() -> float:
+    """Compile every function decorated so far (see the module's text); the seconds it took.
+
+    numba checks a cached function's own file only, not the files of what it calls: the cache
+    folder is named for every source's hash (:mod:`.codecache`)."""
+    global _active
+    with _lock:
+        if _active:
+            return 0.0
+        start = time.perf_counter()
+        import numba
+        numba.config.CACHE_DIR = str(cache_dir())   # type: ignore[attr-defined]
+        if not cache_is_warm():
+            print(f'turning_force: compiling the kernel into {cache_dir()} (once per install '
+                  'and version: 15 to 60 s)', file=sys.stderr, flush=True)
+        made = {id(function): (function, _jit(function, '', compile_now=False), signature)
+                for function, signature in _pending}
+        # Every module that holds one of them by name gets the dispatcher in its place: numba
+        # resolves a compiled function's globals when it compiles it.
+        owners = {function.__module__ for function, _ in _pending}
+        for name, module in list(sys.modules.items()):
+            if module is None or not (name in owners or name.startswith('turning_force')):
+                continue
+            namespace = vars(module)
+            for key, value in list(namespace.items()):
+                found = made.get(id(value))
+                if found is not None and found[0] is value:
+                    namespace[key] = found[1]
+        for _, dispatcher, signature in made.values():
+            if signature and hasattr(dispatcher, 'compile'):   # not under NUMBA_DISABLE_JIT
+                dispatcher.compile(signature)
+                dispatcher.disable_compile()
+        _pending.clear()
+        _active = True
+        return time.perf_counter() - start
+
+
+def _jit(function: _F, signature: str, *, compile_now: bool = True) -> Any:
+    from numba import njit
+    if signature and compile_now:
+        return njit(signature, **_OPTIONS)(function)
+    return njit(**_OPTIONS)(function)
 
 
 # --- Python's and numpy's scalar rules, as the golden traces have them ----------------------

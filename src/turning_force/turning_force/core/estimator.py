@@ -11,7 +11,16 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core import lti
-from turning_force.core.compiled import Arr, compiled, entry, isclose, pairwise_sum, pymax, pymin
+from turning_force.core.compiled import (
+    Arr,
+    activate,
+    compiled,
+    entry,
+    isclose,
+    pairwise_sum,
+    pymax,
+    pymin,
+)
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.estimation import (
     IMPLAUSIBLE_RANGE_FACTOR,
@@ -245,6 +254,7 @@ class ForceEstimator:
     """
 
     def __init__(self, settings: EstimatorSettings) -> None:
+        activate()   # compiled, not interpreted, from the first block
         self.settings = settings
         self._params = _estimator_params(settings)
         state = np.zeros(ES_SIZE)

@@ -14,7 +14,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.compiled import Arr, compiled, entry, pymax, pymin, quantise
+from turning_force.core.compiled import Arr, activate, compiled, entry, pymax, pymin, quantise
 from turning_force.core.overrides import OverrideTable, get_table
 from turning_force.core.pmc import BridgeSettings, Decision, Reason
 from turning_force.core.shopfloor import NO_INPUTS, CutRecord, InputValues, Learned, TaughtTool
@@ -570,6 +570,7 @@ class OverrideGate:
     :class:`Learned` (the teach-in file stays the bridge's)."""
 
     def __init__(self, settings: BridgeSettings, t_s: float | None = None) -> None:
+        activate()   # compiled, not interpreted, from the first block
         self.settings = settings
         self.table: OverrideTable = get_table(settings.override_table)
         self._params = _gate_params(settings, self.table)

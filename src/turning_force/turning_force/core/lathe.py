@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core import lti
-from turning_force.core.compiled import Arr, compiled, delayed, entry, pymod
+from turning_force.core.compiled import Arr, activate, compiled, delayed, entry, pymod
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.feeddrive import friction_current
 from turning_force.core.plant import PlantBlock, PlantSettings
@@ -177,6 +177,7 @@ class LathePlant:
 
     def __init__(self, settings: PlantSettings, samples_per_block: int | None = None,
                  initial_override_pct: float = 100.0) -> None:
+        activate()   # compiled, not interpreted, from the first block
         self.settings = settings
         self.samples_per_block = samples_per_block or settings.samples_per_block
         self._dt = 1.0 / settings.sample_rate_hz

@@ -5,7 +5,8 @@ reference, and returns the feedrate override it asks for: continuous, in percent
 feed, inside the override table's range. The PMC's quantisation happens after it (see
 :mod:`turning_force.core.overrides`); the controllers do not see it, as on a real CNC.
 
-One module per law:
+One module per law, in :mod:`.laws` (or in a package of its own, through the
+``turning_force.laws`` entry point group: :mod:`.registry`); ours:
 
 - ``smc``: continuous sliding mode control (Park 1998, Eqs. 5-21).
 - ``adaptive``: the conventional adaptive controller Park compares against: an integral
@@ -19,10 +20,11 @@ One module per law:
 - ``staircase``: no regulation: a scripted override staircase, the commissioning experiment's
   excitation for ``turning-force identify``.
 
-The two adaptive laws share one recursive least-squares estimator (:mod:`.rls`); the names come
-from one registry (:mod:`.registry`), which the settings' choices are built from. Every law runs
-compiled, through one :class:`Controller` (:mod:`.base`): each module says what the law is and
-reads its settings into the compiled function.
+The two adaptive laws share one recursive least-squares estimator (:mod:`.rls`), and the
+sliding mode law a Smith predictor (:mod:`.predictor`). The names, the settings
+(:mod:`.settings`) and the compiled dispatch (:mod:`.dispatch`) come from one registry
+(:mod:`.registry`). Every law runs compiled, through one :class:`Controller` (:mod:`.base`)
+and :mod:`.update`, which does around each law's step what every law shares.
 """
 
 from __future__ import annotations

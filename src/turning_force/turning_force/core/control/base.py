@@ -1,25 +1,42 @@
-"""What every control law shares: the controller that runs it, its output, the guard on its
-state, the error-feedback quantiser and the reachability flag.
+"""The controller that runs a law: its parameters and state, one period at a time.
 
-A law is a module of this package with a :class:`.law.Law` entry in :mod:`.registry`: its name, its
-number in the compiled dispatch, and the function that reads its settings into the compiled
-parameters. Its arithmetic is written once, as a compiled function of
-:mod:`turning_force.core.control.laws` (``controller_update`` and the law's own function beside
-it); :class:`Controller` runs it one period at a time, the compiled loops many periods at once.
+A law is one module (:mod:`.law` says what it holds); what every law shares runs compiled
+around its ``step`` in :func:`.update.controller_update`, which :class:`Controller` calls one
+period at a time and the compiled loops many periods at once.
 """
 
 from __future__ import annotations
 
 import itertools
-from types import ModuleType
 from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.control import laws
-from turning_force.core.control.law import ControlOutput
-from turning_force.core.control.registry import CONTROLLERS
+from turning_force.core.compiled import activate
+from turning_force.core.control import update
+from turning_force.core.control.law import (
+    C_CONT,
+    C_EF,
+    C_FEED_RATE,
+    C_GAP,
+    C_KIND,
+    C_LAW,
+    C_MAX,
+    C_MIN,
+    C_PERIOD,
+    C_REF,
+    C_UNREACH,
+    CS_HELD,
+    CS_LAW,
+    CS_RESETS,
+    OUT_ERR,
+    OUT_PCT,
+    OUT_REACH,
+    OUT_S,
+    ControlOutput,
+)
+from turning_force.core.control.registry import CONTROLLERS, names
 from turning_force.core.overrides import OverrideTable, get_table
 
 if TYPE_CHECKING:
@@ -57,17 +74,17 @@ class Controller:
     """
 
     def __init__(self, settings: ControllerSettings) -> None:
-        jit = laws
+        activate()   # compiled, not interpreted, from the first period
         self.settings = settings
         self.name = settings.controller
         self._table = get_table(settings.override_table)
         self.min_pct, self.max_pct = self._table.min_pct, self._table.max_pct
         self._levels = np.array(self._table.levels_pct, dtype=np.float64)
-        self._params, queue = _params(jit, settings, self._table)
-        self._state = np.zeros(jit.CS_QUEUE + queue)
-        self._state[jit.CS_HELD] = min(max(settings.initial_override_pct, self.min_pct),
-                                       self.max_pct)
-        jit.controller_start(self._params, self._state)
+        self._params, size = _params(settings, self._table)
+        self._state = np.zeros(CS_LAW + size)
+        self._state[CS_HELD] = min(max(settings.initial_override_pct, self.min_pct),
+                                   self.max_pct)
+        update.controller_start(self._params, self._state)
         self._out = np.zeros(4)
 
     @property
@@ -79,33 +96,35 @@ class Controller:
     @property
     def resets(self) -> int:
         """How often the law was reset after a non-finite input or state."""
-        return int(self._state[laws.CS_RESETS])
+        return int(self._state[CS_RESETS])
 
     def retune(self, settings: ControllerSettings) -> None:
         """Take new dynamic settings (reference, gains) from the next update on."""
         self.settings = settings
-        self._params = _params(laws, settings, self._table)[0]
+        self._params = _params(settings, self._table)[0]
 
     def update(self, force_n: float, force_rate_n_s: float) -> ControlOutput:
         """One control period: measured force and force rate in, override request out."""
-        jit, out = laws, self._out
-        jit.control_step(self._params, self._state, self._levels, float(force_n),
-                         float(force_rate_n_s), out)
-        return ControlOutput(float(out[jit.OUT_PCT]), float(out[jit.OUT_ERR]),
-                             float(out[jit.OUT_S]), bool(out[jit.OUT_REACH] != 0.0))
+        out = self._out
+        update.control_step(self._params, self._state, self._levels, float(force_n),
+                            float(force_rate_n_s), out)
+        return ControlOutput(float(out[OUT_PCT]), float(out[OUT_ERR]), float(out[OUT_S]),
+                             bool(out[OUT_REACH] != 0.0))
 
 
-def _params(jit: ModuleType, c: ControllerSettings,
-            table: OverrideTable) -> tuple[FloatArray, int]:
-    """The compiled controller's parameters (``C_*``) and its queue's length."""
+def _params(c: ControllerSettings, table: OverrideTable) -> tuple[FloatArray, int]:
+    """The compiled controller's parameters (``C_*``, then the law's own) and the size of the
+    law's own state."""
     law = CONTROLLERS[c.controller]
-    p = np.zeros(jit.C_SIZE)
-    p[jit.C_KIND] = law.kind(jit)
-    p[jit.C_REF], p[jit.C_PERIOD] = c.reference_force_n, c.control_period_s
+    own, size = law.fill(c)
+    p = np.zeros(C_LAW + len(own))
+    p[C_KIND] = names().index(law.name)
+    p[C_REF], p[C_PERIOD] = c.reference_force_n, c.control_period_s
     levels = table.levels_pct
-    p[jit.C_MIN], p[jit.C_MAX] = table.min_pct, table.max_pct
-    p[jit.C_GAP] = max(b - a for a, b in itertools.pairwise(levels))
-    p[jit.C_EF] = c.quantiser == 'error_feedback'
-    p[jit.C_UNREACH], p[jit.C_FEED_RATE] = c.unreachable_after_s, c.programmed_feed_rate_mm_min
-    p[jit.C_CONT] = table.continuous
-    return law.fill(jit, c, p)
+    p[C_MIN], p[C_MAX] = table.min_pct, table.max_pct
+    p[C_GAP] = max(b - a for a, b in itertools.pairwise(levels))
+    p[C_EF] = c.quantiser == 'error_feedback'
+    p[C_UNREACH], p[C_FEED_RATE] = c.unreachable_after_s, c.programmed_feed_rate_mm_min
+    p[C_CONT] = table.continuous
+    p[C_LAW:] = own
+    return p, size

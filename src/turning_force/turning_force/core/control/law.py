@@ -1,37 +1,174 @@
-"""What a control law is to the controller that runs it (:class:`Law`), and what it gives
-(:class:`ControlOutput`)."""
+"""What a control law is: the settings every law shares, the compiled arrays a law reads and
+writes, and the :class:`Law` a law's module declares.
+
+A law is one module (in :mod:`turning_force.core.control.laws`, or in a package of its own that
+names it under the ``turning_force.laws`` entry point group). It holds:
+
+- ``Settings``: a frozen dataclass subclass of :class:`ControllerBase` with the law's own
+  fields, each made by :func:`~turning_force.core.settings.setting` (they become
+  ``force_controller`` parameters, prefixed with the law's name by convention), and its
+  ``check`` (call ``super().check()`` first);
+- ``fill(settings) -> (parameters, state_size)``: the law's parameters in the order its
+  compiled code reads them from ``C_LAW`` on, and how many state slots it uses from ``CS_LAW``
+  on;
+- compiled functions (:func:`~turning_force.core.compiled.compiled`), found by name:
+  ``step(cp, cs, force, rate, out)`` writes the request into ``out[OUT_PCT]``, the error into
+  ``out[OUT_ERR]`` and the sliding variable (0 if none) into ``out[OUT_S]``; ``reset(cp, cs)``
+  the fresh state of a new cut from the held request ``cs[CS_HELD]``; optionally
+  ``finite(cp, cs) -> bool`` (whether the state is fit to go on: the guard resets the law
+  otherwise) and ``sent(cp, cs, level)`` (the PMC level sent, once the quantiser chose it);
+- ``LAW = Law(name, Settings, fill, summary)``.
+
+What every law shares runs around ``step`` (:mod:`.update`): the guard on non-finite input,
+output and state, the error-feedback quantiser, the reachability flag.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
+import sys
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from types import ModuleType
-from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
-if TYPE_CHECKING:
-    from turning_force.core.control.settings import ControllerSettings
+from turning_force.core import shared
+from turning_force.core.compiled import compiled, pymax, pymin
+from turning_force.core.overrides import get_table
+from turning_force.core.settings import Settings, setting
 
-__all__ = ['ControlOutput', 'Law']
+__all__ = [
+    'CS_HELD',
+    'CS_LAW',
+    'C_LAW',
+    'OUT_ERR',
+    'OUT_PCT',
+    'OUT_S',
+    'ControlOutput',
+    'ControllerBase',
+    'Law',
+    'clip',
+    'feed_rate',
+    'pct',
+]
 
 FloatArray = npt.NDArray[np.float64]
+
+# --- the compiled arrays ----------------------------------------------------------------------
+# Parameters every law has (cp); a law's own follow from C_LAW.
+C_KIND, C_REF, C_PERIOD, C_MIN, C_MAX, C_GAP, C_EF, C_UNREACH, C_FEED_RATE, C_CONT = range(10)
+C_LAW = 10
+# State every law has (cs): the request held, the quantiser's carry, the time pinned at an end
+# of the table and which end, the resets; a law's own follow from CS_LAW.
+CS_HELD, CS_CARRY, CS_PINNED, CS_RESETS, CS_SIDE = range(5)
+CS_LAW = 5
+# One period's output: request, error, sliding variable, reachable.
+OUT_PCT, OUT_ERR, OUT_S, OUT_REACH = range(4)
+
+
+@compiled
+def clip(cp: np.ndarray, pct: float) -> float:
+    """A request inside the override table's range."""
+    return pymin(pymax(pct, cp[C_MIN]), cp[C_MAX])
+
+
+@compiled
+def pct(cp: np.ndarray, rate_mm_min: float) -> float:
+    """A feed rate [mm/min] as an override of the programmed feed [%]."""
+    return 100.0 * rate_mm_min / cp[C_FEED_RATE]
+
+
+@compiled
+def feed_rate(cp: np.ndarray, override_pct: float) -> float:
+    """An override [%] as a feed rate [mm/min]."""
+    return override_pct / 100.0 * cp[C_FEED_RATE]
+
+
+@dataclass(frozen=True)
+class ControllerBase(Settings):
+    """The force controller's settings every law shares (``force_controller`` parameters).
+
+    The settings the node and the files use, :class:`~.settings.ControllerSettings`, are these
+    with every law's own (each law's ``Settings`` derives from this class)."""
+
+    SECTION = 'force_controller'
+
+    controller: str = setting('smc', 'Control law')
+    reference_force_n: float = setting(500.0, 'Reference cutting force F_ref; below '
+                                       'max_feed_force_n', 'N', low=0.0, low_open=True,
+                                       high=1e5, dynamic=True)
+    control_period_s: float = shared.control_period_s()
+    spindle_speed_rpm: float = shared.spindle_speed_rpm()
+    programmed_feed_mm_rev: float = shared.programmed_feed_mm_rev()
+    override_table: str = shared.override_table()
+    max_feed_force_n: float = shared.max_feed_force_n()
+    quantiser: str = setting('error_feedback', 'How a request becomes a PMC level: the '
+                             "bridge's nearest level, or error feedback (noise shaping: the "
+                             'levels sent average to the request)',
+                             choices=('nearest', 'error_feedback'))
+    unreachable_after_s: float = setting(1.0, 'A request held at the end of the table this long '
+                                         '(150 % with the force below the reference, 0 % with '
+                                         'it above) reports the reference unreachable', 's',
+                                         low=0.0, low_open=True, high=3600.0, dynamic=True)
+    initial_override_pct: float = setting(100.0, 'Override before the first update', '%',
+                                          low=0.0, high=255.0)
+    model_servo_time_constant_s: float = setting(0.17, 'Servo time constant tau_s the '
+                                                 'controllers assume (Park Eq. 2)', 's', low=0.0,
+                                                 low_open=True, high=10.0)
+    model_servo_model: str = setting('first_order', 'Servo model the predictor assumes: first '
+                                     'order (tau_s, Park Eq. 2) or second order (w_n, damping, '
+                                     'Hwang & Chen Eq. 1)', choices=('first_order',
+                                                                     'second_order'))
+    model_servo_natural_freq_rad_s: float = setting(60.0, 'Second-order servo natural frequency '
+                                                    'the predictor assumes', 'rad/s', low=0.0,
+                                                    low_open=True, high=1e4)
+    model_servo_damping: float = setting(0.7, 'Second-order servo damping the predictor assumes',
+                                         low=0.0, low_open=True, high=10.0)
+    model_dead_time_s: float = setting(0.0, 'PMC dead time the predictor assumes (Kim: 0.08 s '
+                                       'on a FANUC); from `turning-force identify`', 's', low=0.0,
+                                       high=2.0)
+    model_cutting_time_constant_s: float = setting(0.05, 'Process time constant tau_c the SMC '
+                                                   'assumes (Park Eq. 1)', 's', low=0.0,
+                                                   low_open=True, high=10.0)
+
+    def check(self) -> None:
+        super().check()
+        table = get_table(self.override_table)
+        if not table.min_pct <= self.initial_override_pct <= table.max_pct:
+            self.fail('initial_override_pct', f'outside the {table.name} range '
+                                              f'[{table.min_pct:g}, {table.max_pct:g}] %')
+        if self.reference_force_n >= self.max_feed_force_n:
+            self.fail('reference_force_n', f'not below max_feed_force_n '
+                                           f'({self.max_feed_force_n:g} N)')
+
+    @property
+    def programmed_feed_rate_mm_min(self) -> float:
+        return self.programmed_feed_mm_rev * self.spindle_speed_rpm
+
+    @property
+    def nyquist_rad_s(self) -> float:
+        """The control loop's Nyquist rate, pi / control_period_s."""
+        return math.pi / self.control_period_s
 
 
 @dataclass(frozen=True)
 class Law:
-    """A control law as the compiled controller runs it.
-
-    ``kind``: its number in ``controller_update``'s dispatch (``jit.SMC``, ...). ``fill``: reads
-    the law's settings (and what it derives from them: models, initial estimates) into the
-    parameters ``p`` (``C_*`` slots); returns the parameters (a longer array where the law
-    needs more slots) and the length of the state's queue (``CS_QUEUE`` on)."""
+    """A control law as the controller runs it: its name, its settings, how it reads them into
+    its compiled parameters (``fill``), and a line that says what it is. Its compiled
+    functions are its module's ``step``, ``reset``, ``finite`` and ``sent`` (see the module's
+    text)."""
 
     name: str
-    kind: Callable[[ModuleType], int]
-    fill: Callable[[ModuleType, ControllerSettings, FloatArray], tuple[FloatArray, int]]
+    settings: type[ControllerBase]
+    fill: Callable[[ControllerBase], tuple[Sequence[float], int]]
     summary: str
+
+    @property
+    def module(self) -> ModuleType:
+        """The module that declares the law (and holds its compiled functions)."""
+        return sys.modules[self.settings.__module__]
 
 
 @dataclass(frozen=True)

@@ -2,8 +2,8 @@
 
 Each algorithm is written once, compiled, in the module of its stage of the signal chain: the
 plant (:mod:`turning_force.core.lathe`), the estimator (:mod:`turning_force.core.estimator`), the
-control laws (:mod:`turning_force.core.control.laws`), the PMC gate with the shop floor's
-behaviours (:mod:`turning_force.core.gate`). They run compiled on every path: the nodes one
+control laws (:mod:`turning_force.core.control.laws`), the PMC gate with the shop
+floor's behaviours (:mod:`turning_force.core.gate`). They run compiled on every path: the nodes one
 block at a time (:class:`~turning_force.core.lathe.LathePlant`,
 :class:`~turning_force.core.estimator.ForceEstimator`,
 :class:`~turning_force.core.control.base.Controller`,
@@ -20,7 +20,6 @@ from __future__ import annotations
 import contextlib
 import sys
 import threading
-import time
 from types import ModuleType
 
 from turning_force.core.codecache import STAMP, cache_dir, cache_is_warm, source_hash
@@ -49,10 +48,10 @@ def load() -> ModuleType:
             try:
                 from turning_force.core import compiled
                 from turning_force.core.kernel import loops as jit
+                took = compiled.activate()
             except Exception as exc:   # a broken numba install: say so
                 raise RuntimeError(f'the compiled kernel did not load: {exc!r}') from exc
             if not warm:
-                took = time.perf_counter() - compiled.COMPILE_START_S
                 print(f'turning_force: kernel compiled in {took:.0f} s', file=sys.stderr,
                       flush=True)
                 with contextlib.suppress(OSError):

@@ -3,7 +3,7 @@ inputs, the estimator, the controller, the gate), :func:`run_core` (the closed l
 simulated lathe), :func:`run_core_kept` (the same, keeping every block for ``run --core --out``)
 and :func:`replay_blocks` (open loop over recorded currents). Each stage's algorithm is its own
 module's (:mod:`turning_force.core.lathe`, :mod:`turning_force.core.estimator`,
-:mod:`turning_force.core.control.laws`, :mod:`turning_force.core.gate`); the loops only call
+:mod:`turning_force.core.control.update`, :mod:`turning_force.core.gate`); the loops only call
 them, in the graph's order.
 
 Entry points have explicit signatures: importing this module compiles them, or with a warm
@@ -21,14 +21,8 @@ from turning_force.core.compiled import (
     compiled,
     entry,
 )
-from turning_force.core.control.laws import (
-    C_REF,
-    OUT_ERR,
-    OUT_PCT,
-    OUT_REACH,
-    OUT_S,
-    controller_update,
-)
+from turning_force.core.control.law import C_REF, OUT_ERR, OUT_PCT, OUT_REACH, OUT_S
+from turning_force.core.control.update import controller_update
 from turning_force.core.estimator import (
     ES_DCODE,
     ES_DVAL,
