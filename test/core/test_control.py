@@ -309,3 +309,39 @@ def test_the_settings_choices_are_the_registry():
 def test_gains_and_forces_are_bounded(changes, message):
     with pytest.raises(ConfigError, match=message):
         ControllerSettings(**changes)
+
+
+@pytest.fixture
+def installed(monkeypatch):
+    """Pretend other distributions install the laws given: (name, module, distribution)."""
+    from turning_force.core.control import registry
+
+    def install(*laws):
+        monkeypatch.setattr(registry, 'installed_laws', lambda: laws)
+        registry.law_modules.cache_clear()
+        registry._law.cache_clear()
+        return registry
+
+    yield install
+    monkeypatch.undo()
+    registry.law_modules.cache_clear()
+    registry._law.cache_clear()
+
+
+def test_an_installed_law_may_not_take_a_name_of_ours(installed):
+    registry = installed(('smc', 'their_package.smc', 'their-dist'))
+    with pytest.raises(ConfigError, match=r"smc = their_package.smc \(from their-dist\): the law "
+                                          r"'smc' is already turning_force.core.control.laws.smc"):
+        registry.names()
+
+
+@pytest.mark.parametrize(('module', 'message'), [
+    ('json', r"control law 'broken' \(json\): no LAW = "),
+    ('turning_force.core.control.laws.pi', r"its LAW is named 'pi'"),
+    ('no_such_module_anywhere', r'its module no_such_module_anywhere does not import'),
+])
+def test_an_installed_law_that_is_not_one_is_refused_by_name(installed, module, message):
+    registry = installed(('broken', module, 'their-dist'))
+    assert registry.names()[-1] == 'broken'
+    with pytest.raises(ConfigError, match=message):
+        registry.CONTROLLERS['broken']
