@@ -9,10 +9,11 @@ with their signatures. Under ``NUMBA_DISABLE_JIT=1`` they run as the Python they
 
 Decorating imports no numba: a module of compiled code costs what its Python costs to import,
 so that reading settings (which live beside the code that reads them) stays cheap.
-:func:`activate` (called by :func:`turning_force.core.kernel.load`) imports numba, makes every
+:func:`activate` (called by :func:`turning_force.core.kernel.load`) imports numba and makes every
 function decorated so far a numba dispatcher, in its module and in every module that imported
-it by name, and compiles (or loads from the cache) the entry points; what is decorated after it
-is compiled as it is defined. numba's machine code goes to
+it by name; what is decorated after it is compiled as it is defined. An entry point is compiled
+for its signature (or loaded from the cache) at its first call, so that a run loads the machine
+code of the entry points it calls and no other. numba's machine code goes to
 :func:`turning_force.core.codecache.cache_dir`, never into the installed package.
 """
 
@@ -84,10 +85,11 @@ def activate() -> float:
         if not cache_is_warm():
             print(f'turning_force: compiling the kernel into {cache_dir()} (once per install '
                   'and version: 15 to 60 s)', file=sys.stderr, flush=True)
-        made = {id(function): (function, _jit(function, '', compile_now=False), signature)
+        made = {id(function): (function, _jit(function, signature))
                 for function, signature in _pending}
-        # Every module that holds one of them by name gets the dispatcher in its place: numba
-        # resolves a compiled function's globals when it compiles it.
+        # Every module that holds one of them by name gets the dispatcher in its place (numba
+        # resolves a compiled function's globals when it compiles it), an entry point's behind
+        # its first call.
         owners = {function.__module__ for function, _ in _pending}
         for name, module in list(sys.modules.items()):
             if module is None or not (name in owners or name.startswith('turning_force')):
@@ -97,20 +99,49 @@ def activate() -> float:
                 found = made.get(id(value))
                 if found is not None and found[0] is value:
                     namespace[key] = found[1]
-        for _, dispatcher, signature in made.values():
-            if signature and hasattr(dispatcher, 'compile'):   # not under NUMBA_DISABLE_JIT
-                dispatcher.compile(signature)
-                dispatcher.disable_compile()
+        if not cache_is_warm():   # compile them all now, and say how long it took
+            for _, compiled_function in made.values():
+                if isinstance(compiled_function, _Entry):
+                    compiled_function.load()
         _pending.clear()
         _active = True
         return time.perf_counter() - start
 
 
-def _jit(function: _F, signature: str, *, compile_now: bool = True) -> Any:
+class _Entry:
+    """An entry point: its dispatcher, compiled for its signature at the first call and then
+    closed to any other (a call with other types is an error, not a compilation on the way)."""
+
+    def __init__(self, dispatcher: Any, signature: str) -> None:
+        self._dispatcher, self._signature = dispatcher, signature
+        self._call: Callable[..., Any] = self._first
+        self.__doc__, self.__name__ = dispatcher.__doc__, dispatcher.__name__
+
+    def __call__(self, *args: Any) -> Any:
+        return self._call(*args)
+
+    def load(self) -> None:
+        """Compile it for its signature now, or load it from the cache."""
+        with _lock:
+            if self._call is not self._dispatcher:
+                self._dispatcher.compile(self._signature)
+                self._dispatcher.disable_compile()
+                self._call = self._dispatcher
+
+    def _first(self, *args: Any) -> Any:
+        self.load()
+        return self._call(*args)
+
+    def __getattr__(self, name: str) -> Any:   # signatures, py_func, ...
+        return getattr(self._dispatcher, name)
+
+
+def _jit(function: _F, signature: str) -> Any:
+    """numba's dispatcher of ``function`` (the function itself under ``NUMBA_DISABLE_JIT``),
+    an entry point's behind :class:`_Entry`."""
     from numba import njit
-    if signature and compile_now:
-        return njit(signature, **_OPTIONS)(function)
-    return njit(**_OPTIONS)(function)
+    made = njit(**_OPTIONS)(function)
+    return _Entry(made, signature) if signature and hasattr(made, 'compile') else made
 
 
 # --- Python's and numpy's scalar rules, as the golden traces have them ----------------------
