@@ -12,7 +12,7 @@ from typing import Any
 
 import yaml
 
-from turning_force.core.machine import Machine, parse_machine
+from turning_force.core.pmc.machine import Machine, parse_machine
 
 MACHINES = Path(__file__).resolve().parents[1] / 'config' / 'machines'
 

@@ -26,9 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from turning_force.core import batch, kernel
+from turning_force.core import kernel
 from turning_force.core.experiment import load_experiment
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel import batch
+from turning_force.core.kernel.simulate import simulate
 from turning_force.session.reader import Session, read_session
 from turning_force.session.replay import _currents, _inputs, _recorded_reference, replay
 

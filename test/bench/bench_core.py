@@ -24,7 +24,7 @@ from pathlib import Path
 from turning_force.commands import robustness
 from turning_force.core import kernel
 from turning_force.core.experiment import load_experiment
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[2]
 EXPERIMENTS = ROOT / 'config' / 'experiments'

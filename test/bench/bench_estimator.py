@@ -13,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from turning_force.core.estimation import EstimatorSettings
-from turning_force.core.estimator import ForceEstimator
+from turning_force.core.estimation.estimator import ForceEstimator
+from turning_force.core.estimation.settings import EstimatorSettings
 from turning_force.core.experiment import load_experiment
-from turning_force.core.lathe import LathePlant
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel.simulate import simulate
+from turning_force.core.plant.lathe import LathePlant
 
 FIG8 = Path(__file__).resolve().parents[2] / 'config' / 'experiments' / 'park1998_fig8.yaml'
 

@@ -4,7 +4,7 @@ Each machine is the commissioning experiment (``config/experiments/commissioning
 another plant: PMC dead time 0-120 ms, first- and second-order feed servos, other steels (K_s),
 process lags, current noise, force fluctuation and a noisy feed reading (2 mm/min: with a
 noise-free one the servo fits are exact and their uncertainties nil), the eight-bit override.
-The session is recorded through the core loop (:func:`turning_force.core.record.record`),
+The session is recorded through the core loop (:func:`turning_force.core.kernel.record.record`),
 identified (:func:`turning_force.core.identify.identify`), and each estimate printed beside the
 truth with its standard deviation and the error. Run:
 ``.venv/bin/python test/bench/bench_identify.py`` (or ``make bench``). It measures;
@@ -19,7 +19,7 @@ from pathlib import Path
 
 from turning_force.core.experiment import load_experiment
 from turning_force.core.identify import identify
-from turning_force.core.record import record
+from turning_force.core.kernel.record import record
 
 COMMISSIONING = (Path(__file__).resolve().parents[2] / 'config' / 'experiments'
                  / 'commissioning.yaml')

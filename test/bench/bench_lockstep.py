@@ -33,7 +33,7 @@ from std_msgs.msg import Float64
 
 from turning_force.commands.run import RunOutcome, run_lockstep
 from turning_force.core.experiment import Experiment, load_experiment
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel.simulate import simulate
 from turning_force.nodes.lathe_sim import LatheSimNode
 
 FIG8 = Path(__file__).resolve().parents[2] / 'config' / 'experiments' / 'park1998_fig8.yaml'

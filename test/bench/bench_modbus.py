@@ -30,7 +30,7 @@ from rclpy.parameter import Parameter
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # test/modbus_helpers.py
 from modbus_helpers import ServerProcess, local_machine, write_machine
 from turning_force.core.experiment import load_experiment
-from turning_force.core.machine import MachineInputs, MachineOutputs
+from turning_force.core.pmc.machine import MachineInputs, MachineOutputs
 from turning_force.io.modbus_pmc import ModbusPmc
 from turning_force.io.pmc_server import SimulatedPmcServer
 from turning_force.nodes.force_controller import ForceControllerNode

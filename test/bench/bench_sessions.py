@@ -31,7 +31,7 @@ def read_old(bag: Path) -> int:
     the number of blocks."""
     import numpy as np
 
-    from turning_force.core.drive import CurrentBlock
+    from turning_force.core.plant.drive import CurrentBlock
     from turning_force.session.reader import (
         ANSWERS,
         READ,

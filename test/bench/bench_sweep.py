@@ -30,7 +30,7 @@ from turning_force.commands import sweep as sweep_module
 from turning_force.commands.sweep import parse_grid, sweep
 from turning_force.core import kernel
 from turning_force.core.experiment import load_experiment
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[2]
 FIG8 = ROOT / 'config' / 'experiments' / 'park1998_fig8.yaml'

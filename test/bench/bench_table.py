@@ -54,9 +54,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_realtime
 import bench_sessions
 
-from turning_force.core import batch, kernel
+from turning_force.core import kernel
 from turning_force.core.experiment import load_experiment
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel import batch
+from turning_force.core.kernel.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[2]
 FIG8 = ROOT / 'config' / 'experiments' / 'park1998_fig8.yaml'

@@ -14,8 +14,8 @@ from turning_force_msgs.msg import ForceEstimate, ServoCurrents
 from turning_force.cli import main
 from turning_force.commands.play import play
 from turning_force.core.experiment import load_experiment
+from turning_force.core.kernel.simulate import simulate
 from turning_force.core.metrics import METRIC_NAMES
-from turning_force.core.simulate import simulate
 from turning_force.nodes.convert import last_sample_ns, servo_currents_to_block, stamp_to_ns
 from turning_force.nodes.force_estimator import ForceEstimatorNode
 from turning_force.session.reader import read_session

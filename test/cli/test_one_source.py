@@ -18,11 +18,12 @@ import pytest
 PROBE = Path(__file__).with_name('one_source_probe.py')
 LAWS = [f'turning_force.core.control.laws.{law}:step@{law}'
         for law in ('smc', 'pi', 'adaptive', 'adaptive_smc', 'adaptive_pp', 'staircase')]
-ALGORITHMS = ['turning_force.core.lathe:plant_step',
-              'turning_force.core.estimator:estimator_update',
+ALGORITHMS = ['turning_force.core.plant.lathe:plant_step',
+              'turning_force.core.estimation.estimator:estimator_update',
               'turning_force.core.control.update:controller_update', *LAWS,
-              'turning_force.core.gate:gate_on_estimate', 'turning_force.core.gate:gate_answer',
-              'turning_force.core.gate:_observe', 'turning_force.core.gate:_judge']
+              'turning_force.core.pmc.gate:gate_on_estimate',
+              'turning_force.core.pmc.gate:gate_answer',
+              'turning_force.core.pmc.gate:_observe', 'turning_force.core.pmc.gate:_judge']
 
 
 @pytest.mark.parametrize('path', ['run', 'run-core', 'replay', 'sweep'])

@@ -7,7 +7,7 @@ import pytest
 
 from modbus_helpers import local_machine, write_machine
 from turning_force.cli import main
-from turning_force.core.overrides import get_table
+from turning_force.core.pmc.overrides import get_table
 from turning_force.io.pmc_server import SimulatedPmcServer
 
 TABLE = get_table('fanuc_0t_4bit')

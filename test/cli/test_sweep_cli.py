@@ -10,8 +10,8 @@ import pytest
 
 from turning_force.cli import main
 from turning_force.core.experiment import load_experiment
+from turning_force.core.kernel.simulate import simulate
 from turning_force.core.metrics import METRIC_NAMES
-from turning_force.core.simulate import simulate
 from turning_force.session.reader import read_session
 from turning_force.session.replay import replay
 

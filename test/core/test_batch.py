@@ -20,8 +20,11 @@ from hypothesis import strategies as st
 from test_kernel import EXPERIMENTS, FIG8, FILES
 
 from turning_force.commands import robustness
-from turning_force.core import batch
-from turning_force.core.batch import (
+from turning_force.core.errors import NoCutError
+from turning_force.core.estimation.settings import EstimateStatus
+from turning_force.core.experiment import Experiment, load_experiment
+from turning_force.core.kernel import batch
+from turning_force.core.kernel.batch import (
     ChainTrace,
     CoreRun,
     CurrentArrays,
@@ -30,17 +33,14 @@ from turning_force.core.batch import (
     replay_chain,
     run_core,
 )
-from turning_force.core.drive import CurrentBlock
-from turning_force.core.errors import NoCutError
-from turning_force.core.estimation import EstimateStatus
-from turning_force.core.experiment import Experiment, load_experiment
-from turning_force.core.lathe import LathePlant
-from turning_force.core.loop import ControlChain
+from turning_force.core.kernel.chain import ControlChain
+from turning_force.core.kernel.simulate import TRACE_NAMES, SimulationResult, simulate
 from turning_force.core.metrics import compute_metrics
-from turning_force.core.overrides import get_table
-from turning_force.core.pmc import Reason
-from turning_force.core.shopfloor import InputValues
-from turning_force.core.simulate import TRACE_NAMES, SimulationResult, simulate
+from turning_force.core.plant.drive import CurrentBlock
+from turning_force.core.plant.lathe import LathePlant
+from turning_force.core.pmc.overrides import get_table
+from turning_force.core.pmc.settings import Reason
+from turning_force.core.pmc.shopfloor import InputValues
 
 # Long enough for the engagement and the first depth step of every file (fig8's at 4 s).
 MAX_S = 6.0

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from turning_force.core.daq import DaqConverter, DaqSettings
+from turning_force.core.plant.daq import DaqConverter, DaqSettings
 from turning_force.session.reader import read_session
 
 REFERENCE = Path(__file__).resolve().parents[2] / 'bags' / 'reference' / 'park1998_fig8'

@@ -5,14 +5,14 @@ import math
 import numpy as np
 import pytest
 
-from turning_force.core.drive import (
+from turning_force.core.errors import ConfigError
+from turning_force.core.plant.drive import (
     CurrentForceMap,
     FrictionModel,
     clarke_park,
     inverse_park_clarke,
     rotor_angle_rad,
 )
-from turning_force.core.errors import ConfigError
 
 
 def test_dq_transform_inverts_exactly():

@@ -6,11 +6,15 @@ import math
 import numpy as np
 import pytest
 
-from turning_force.core.drive import CurrentBlock
-from turning_force.core.estimation import EstimateStatus, EstimatorSettings, calibrate_friction
-from turning_force.core.estimator import ForceEstimator
-from turning_force.core.lathe import LathePlant
-from turning_force.core.plant import PlantSettings
+from turning_force.core.estimation.estimator import ForceEstimator
+from turning_force.core.estimation.settings import (
+    EstimateStatus,
+    EstimatorSettings,
+    calibrate_friction,
+)
+from turning_force.core.plant.drive import CurrentBlock
+from turning_force.core.plant.lathe import LathePlant
+from turning_force.core.plant.settings import PlantSettings
 
 FILTERS = ['lowpass', 'kalman']
 

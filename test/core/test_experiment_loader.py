@@ -19,8 +19,8 @@ from turning_force.core.experiment import (
     parse_experiment,
     parse_set,
 )
-from turning_force.core.machine import load_machine
 from turning_force.core.overlay import read_parameters
+from turning_force.core.pmc.machine import load_machine
 from turning_force.core.settings import INT64_MAX
 
 

@@ -31,7 +31,7 @@ def test_a_changed_behaviour_is_caught(tmp_path):
     # The comparison is not blind: a run of another setting against fig8's trace is refused,
     # by trace and by metric.
     from turning_force.core.experiment import load_experiment
-    from turning_force.core.simulate import simulate
+    from turning_force.core.kernel.simulate import simulate
 
     result = simulate(load_experiment(EXPERIMENTS / 'park1998_fig8.yaml').with_sets(
         ['force_controller.smc_epsilon_n=9.0']))

@@ -15,8 +15,8 @@ import pytest
 
 from turning_force.core.experiment import load_experiment
 from turning_force.core.identify import IdentifyError, calibrate_map, identify
-from turning_force.core.record import record
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel.record import record
+from turning_force.core.kernel.simulate import simulate
 
 SHORT = ['force_controller.staircase_step_s=0.5', 'experiment.duration_s=10.5',
          'lathe_sim.depth_times_s=[0.0, 5.25]']
@@ -189,8 +189,8 @@ def test_the_servo_model_is_the_plants_exactly(model, params):
     import scipy.linalg
 
     from turning_force.core.identify import _hold, servo_matrices, servo_response
-    from turning_force.core.lathe import LathePlant
-    from turning_force.core.plant import PlantSettings
+    from turning_force.core.plant.lathe import LathePlant
+    from turning_force.core.plant.settings import PlantSettings
 
     # The closed-form hold equals the matrix exponential.
     a, b = servo_matrices(model, params)

@@ -14,7 +14,7 @@ import pytest
 
 from turning_force.core import kernel
 from turning_force.core.experiment import load_experiment
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel.simulate import simulate
 
 EXPERIMENTS = Path(__file__).resolve().parents[2] / 'config' / 'experiments'
 FILES = sorted(EXPERIMENTS.glob('*.yaml'))
@@ -38,13 +38,22 @@ def test_every_compiled_source_keys_the_cache(monkeypatch):
 
     def edited(path: Path) -> bytes:
         data = original(path)
-        return data + b'# edited' if path.name == 'pmc.py' else data
+        return data + b'# edited' if path.name == 'gate.py' else data
 
     monkeypatch.setattr(Path, 'read_bytes', edited)
     codecache.source_hash.cache_clear()
     try:
         assert kernel.cache_dir() != before
         assert kernel.cache_dir().parent == before.parent
+    finally:
+        monkeypatch.undo()
+        codecache.source_hash.cache_clear()
+    assert kernel.cache_dir() == before
+    # So does a law another package installs (its name, and its module's source).
+    monkeypatch.setattr(codecache, 'installed_laws', lambda: (('theirs', 'json', 'their-dist'),))
+    codecache.source_hash.cache_clear()
+    try:
+        assert kernel.cache_dir() != before
     finally:
         monkeypatch.undo()
         codecache.source_hash.cache_clear()

@@ -7,14 +7,14 @@ import math
 import numpy as np
 
 from turning_force.core.control import ControllerSettings, make_controller
-from turning_force.core.estimation import EstimateStatus
-from turning_force.core.estimator import ForceEstimator
+from turning_force.core.estimation.estimator import ForceEstimator
+from turning_force.core.estimation.settings import EstimateStatus
 from turning_force.core.experiment import load_experiment
-from turning_force.core.gate import OverrideGate
-from turning_force.core.lathe import LathePlant
-from turning_force.core.loop import ControlChain, command_for
-from turning_force.core.pmc import Reason
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel.chain import ControlChain, command_for
+from turning_force.core.kernel.simulate import simulate
+from turning_force.core.plant.lathe import LathePlant
+from turning_force.core.pmc.gate import OverrideGate
+from turning_force.core.pmc.settings import Reason
 
 
 def test_the_chain_is_the_nodes_pieces_in_the_graphs_order(experiments_dir):
@@ -44,7 +44,7 @@ def test_the_chain_is_the_nodes_pieces_in_the_graphs_order(experiments_dir):
 
 def test_no_command_on_an_estimate_that_says_nothing_new():
     controller = make_controller(ControllerSettings())
-    from turning_force.core.estimation import ForceEstimate
+    from turning_force.core.estimation.settings import ForceEstimate
 
     for status in (EstimateStatus.INVALID_INPUT, EstimateStatus.STALE):
         assert command_for(controller, ForceEstimate(0.0, 400.0, 0.0, 0.0, 0.0, status)) is None

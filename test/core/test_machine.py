@@ -9,8 +9,8 @@ import pytest
 import yaml
 
 from turning_force.core.errors import ConfigError
-from turning_force.core.machine import DigitalPoint, load_machine, parse_machine
-from turning_force.core.overrides import get_table
+from turning_force.core.pmc.machine import DigitalPoint, load_machine, parse_machine
+from turning_force.core.pmc.overrides import get_table
 
 MACHINES = Path(__file__).resolve().parents[2] / 'config' / 'machines'
 

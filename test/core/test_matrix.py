@@ -40,7 +40,7 @@ def test_an_unreachable_reference_is_reported_and_left_out(experiments_dir):
     # unreachable_after_s (1 s, after the engagement transient); at the 4 s step to 2 mm the
     # reference is reachable again. The steady figure leaves that span out and
     # reachable_fraction says how much was left out.
-    from turning_force.core.simulate import simulate
+    from turning_force.core.kernel.simulate import simulate
 
     scenario = next(s for s in MATRIX if s.name == 'K_s x 0.7')
     result = simulate(scenario_experiment(experiments_dir, scenario, 'smc'))

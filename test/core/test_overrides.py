@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from turning_force.core.errors import ConfigError
-from turning_force.core.overrides import TABLES, OverrideTable, get_table
+from turning_force.core.pmc.overrides import TABLES, OverrideTable, get_table
 
 
 def test_fanuc_0t_has_sixteen_levels_of_ten_percent():

@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from turning_force.core.drive import clarke_park
-from turning_force.core.lathe import LathePlant
-from turning_force.core.plant import DepthProfile, PlantSettings
+from turning_force.core.plant.drive import clarke_park
+from turning_force.core.plant.lathe import LathePlant
+from turning_force.core.plant.settings import DepthProfile, PlantSettings
 
 QUIET = {'current_noise_a': 0.0}
 

@@ -5,9 +5,9 @@ import math
 import pytest
 
 from turning_force.core.errors import ConfigError
-from turning_force.core.estimation import EstimateStatus
-from turning_force.core.gate import OverrideGate
-from turning_force.core.pmc import BridgeSettings, Reason
+from turning_force.core.estimation.settings import EstimateStatus
+from turning_force.core.pmc.gate import OverrideGate
+from turning_force.core.pmc.settings import BridgeSettings, Reason
 
 
 def armed_gate(**changes):
@@ -157,7 +157,7 @@ def test_the_core_loop_runs_through_the_gate(experiments_dir):
     # Fig. 8's first depth step peaks at about 760 N; with a 700 N overload limit the feed is
     # held from then on and the force dies away, as the graph's bridge would do it.
     from turning_force.core.experiment import load_experiment
-    from turning_force.core.simulate import simulate
+    from turning_force.core.kernel.simulate import simulate
 
     experiment = load_experiment(experiments_dir / 'park1998_fig8.yaml').with_sets(
         ['pmc_bridge.overload_force_n=700.0', 'experiment.duration_s=6.0'])

@@ -13,12 +13,12 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from turning_force.core.drive import CurrentBlock
-from turning_force.core.estimation import EstimateStatus, EstimatorSettings
-from turning_force.core.estimator import ForceEstimator
-from turning_force.core.gate import OverrideGate
-from turning_force.core.overrides import TABLES
-from turning_force.core.pmc import BridgeSettings, Reason
+from turning_force.core.estimation.estimator import ForceEstimator
+from turning_force.core.estimation.settings import EstimateStatus, EstimatorSettings
+from turning_force.core.plant.drive import CurrentBlock
+from turning_force.core.pmc.gate import OverrideGate
+from turning_force.core.pmc.overrides import TABLES
+from turning_force.core.pmc.settings import BridgeSettings, Reason
 
 PROPERTY = settings(derandomize=True, max_examples=300, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])

@@ -10,7 +10,7 @@ import pytest
 
 from turning_force.commands.papers import settled_forces
 from turning_force.core.experiment import load_experiment
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel.simulate import simulate
 
 
 @pytest.fixture(scope='module')

@@ -8,9 +8,9 @@ import pytest
 
 from turning_force.core.control import ControllerSettings
 from turning_force.core.errors import ConfigError
-from turning_force.core.estimation import EstimatorSettings
+from turning_force.core.estimation.settings import EstimatorSettings
 from turning_force.core.experiment import RunSettings, load_experiment, parse_set
-from turning_force.core.plant import PlantSettings
+from turning_force.core.plant.settings import PlantSettings
 
 
 @pytest.mark.parametrize(('kind', 'key', 'value', 'match'), [
@@ -175,8 +175,8 @@ def test_the_shared_settings_are_declared_once():
     # One declaration per shared setting: the same spec object text in every section.
     from turning_force.core.control import ControllerSettings
     from turning_force.core.experiment import RunSettings
-    from turning_force.core.plant import PlantSettings
-    from turning_force.core.pmc import BridgeSettings
+    from turning_force.core.plant.settings import PlantSettings
+    from turning_force.core.pmc.settings import BridgeSettings
 
     for name, kinds in {
         'control_period_s': (RunSettings, PlantSettings, ControllerSettings, BridgeSettings),

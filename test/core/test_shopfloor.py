@@ -12,20 +12,20 @@ import pytest
 
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import load_experiment
-from turning_force.core.gate import OverrideGate
-from turning_force.core.lathe import LathePlant
-from turning_force.core.loop import ControlChain
-from turning_force.core.overrides import get_table
-from turning_force.core.plant import PlantSettings
-from turning_force.core.pmc import BridgeSettings, Reason
-from turning_force.core.shopfloor import (
+from turning_force.core.kernel.chain import ControlChain
+from turning_force.core.kernel.simulate import simulate
+from turning_force.core.plant.lathe import LathePlant
+from turning_force.core.plant.settings import PlantSettings
+from turning_force.core.pmc.gate import OverrideGate
+from turning_force.core.pmc.overrides import get_table
+from turning_force.core.pmc.settings import BridgeSettings, Reason
+from turning_force.core.pmc.shopfloor import (
     InputValues,
     TaughtTool,
     load_teach_file,
     save_teach_file,
     taught_reference,
 )
-from turning_force.core.simulate import simulate
 
 PERIOD_S = 0.01
 EXPERIMENTS = Path(__file__).resolve().parents[2] / 'config' / 'experiments'

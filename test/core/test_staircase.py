@@ -10,7 +10,7 @@ import pytest
 from turning_force.core.control import CONTROLLERS, ControllerSettings, make_controller
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import load_experiment
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel.simulate import simulate
 
 
 def staircase(**changes):

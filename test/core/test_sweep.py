@@ -23,8 +23,8 @@ from turning_force.commands.sweep import (
 )
 from turning_force.core.errors import ConfigError, TurningForceError
 from turning_force.core.experiment import load_experiment, parse_set
+from turning_force.core.kernel.simulate import simulate
 from turning_force.core.metrics import METRIC_NAMES
-from turning_force.core.simulate import simulate
 from turning_force.session.reader import read_session
 from turning_force.session.replay import replay
 

@@ -32,7 +32,7 @@ PORTABLE = {'NPY_DISABLE_CPU_FEATURES': 'X86_V4 AVX512_ICL AVX512_SPR',
 def golden_run(path: Path) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """The experiment's traces (COLUMNS) and metrics (without the wall-clock one)."""
     from turning_force.core.experiment import load_experiment
-    from turning_force.core.simulate import simulate
+    from turning_force.core.kernel.simulate import simulate
 
     result = simulate(load_experiment(path))
     metrics = {k: v for k, v in result.metrics.items() if k != 'realtime_factor'}

@@ -10,8 +10,8 @@ from dataclasses import replace
 import pytest
 
 from modbus_helpers import ServerProcess, local_machine, write_machine
-from turning_force.core.machine import DialInput
-from turning_force.core.overrides import get_table
+from turning_force.core.pmc.machine import DialInput
+from turning_force.core.pmc.overrides import get_table
 from turning_force.io.modbus_pmc import CoilReader, ModbusPmc
 from turning_force.io.pmc_server import SimulatedPmcServer, Write
 

@@ -17,7 +17,7 @@ from turning_force_msgs.msg import FeedOverride, ServoCurrents
 
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import load_experiment
-from turning_force.core.overrides import get_table
+from turning_force.core.pmc.overrides import get_table
 from turning_force.nodes.convert import last_sample_ns
 from turning_force.nodes.diagnostics import LATENCY_KEYS, AnswerLatency
 from turning_force.nodes.force_controller import ForceControllerNode

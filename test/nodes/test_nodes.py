@@ -19,7 +19,7 @@ from turning_force_msgs.msg import (
 )
 
 from turning_force.core.errors import ConfigError
-from turning_force.core.estimation import EstimatorSettings
+from turning_force.core.estimation.settings import EstimatorSettings
 from turning_force.nodes.force_controller import REFERENCE_QOS, ForceControllerNode
 from turning_force.nodes.force_estimator import ForceEstimatorNode
 from turning_force.nodes.lathe_sim import LatheSimNode

@@ -21,7 +21,7 @@ from std_srvs.srv import Trigger
 from turning_force_msgs.msg import FeedCommand, FeedOverride
 
 from modbus_helpers import ServerProcess, local_machine, write_machine
-from turning_force.core.overrides import get_table
+from turning_force.core.pmc.overrides import get_table
 from turning_force.io.modbus_pmc import CoilReader
 from turning_force.io.pmc_server import SimulatedPmcServer
 from turning_force.nodes.pmc_bridge import BridgeStartError, PmcBridgeNode

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from turning_force.core.daq import DaqConverter, DaqSettings
+from turning_force.core.plant.daq import DaqConverter, DaqSettings
 from turning_force.nodes.convert import stamp_to_ns
 from turning_force.nodes.servo_daq import block_message
 from turning_force.session.reader import read_session

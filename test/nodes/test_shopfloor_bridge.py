@@ -16,8 +16,8 @@ from std_srvs.srv import Trigger
 from turning_force_msgs.msg import CutRecord, FeedCommand, FeedOverride, ForceEstimate
 
 from modbus_helpers import local_machine, write_machine
-from turning_force.core.overrides import get_table
-from turning_force.core.shopfloor import TaughtTool, save_teach_file
+from turning_force.core.pmc.overrides import get_table
+from turning_force.core.pmc.shopfloor import TaughtTool, save_teach_file
 from turning_force.io.pmc_server import SimulatedPmcServer
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.pmc_bridge import BridgeStartError, PmcBridgeNode

@@ -17,7 +17,7 @@ from turning_force_msgs.msg import FeedOverride, ServoCurrents
 
 from turning_force.commands.run import foreign_endpoints, run_lockstep
 from turning_force.core.experiment import load_experiment
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel.simulate import simulate
 from turning_force.session.bag import typestore
 from turning_force.session.reader import read_session, recorded_metrics
 

@@ -12,7 +12,7 @@ import pytest
 
 from turning_force.commands.run import run_lockstep
 from turning_force.core.experiment import load_experiment
-from turning_force.core.pmc import Reason
+from turning_force.core.pmc.settings import Reason
 from turning_force.session.reader import read_session
 from turning_force.session.replay import replay
 
@@ -88,7 +88,7 @@ def test_the_graph_runs_the_predictor_and_the_quantiser_as_the_core_loop(tmp_pat
     # keeps its model of the levels it sent, as the core loop's does, so both give the same
     # metrics (1e-9 relative: summation order only), and replay reproduces the session.
     from turning_force.commands.robustness import MATRIX, scenario_experiment
-    from turning_force.core.simulate import simulate
+    from turning_force.core.kernel.simulate import simulate
     from turning_force.session.reader import recorded_metrics
 
     scenario = next(s for s in MATRIX if s.name == 'dead time 80 ms')

@@ -17,7 +17,7 @@ from rosbags.highlevel import AnyReader
 
 from turning_force.commands.run import run_lockstep
 from turning_force.core.experiment import load_experiment
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel.simulate import simulate
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
     CUSTOM_PARAMETERS,

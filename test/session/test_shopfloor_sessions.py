@@ -13,9 +13,9 @@ import yaml
 
 from turning_force.commands.run import run_lockstep
 from turning_force.core.experiment import load_experiment
-from turning_force.core.lathe import LathePlant
-from turning_force.core.loop import ControlChain
-from turning_force.core.pmc import Reason
+from turning_force.core.kernel.chain import ControlChain
+from turning_force.core.plant.lathe import LathePlant
+from turning_force.core.pmc.settings import Reason
 from turning_force.session.reader import read_session, recorded_metrics
 from turning_force.session.replay import replay
 from turning_force.session.report import cut_table, write_html_report, write_report

@@ -175,7 +175,7 @@ def _run(args: argparse.Namespace) -> int:
         out: dict[str, Any] = {'experiment': experiment.run.name, 'session': str(bag),
                                'metrics': metrics}
     elif args.core:
-        from turning_force.core.simulate import simulate
+        from turning_force.core.kernel.simulate import simulate
 
         with _signals(defer=False):
             result = simulate(experiment)
@@ -684,7 +684,7 @@ def _repair(args: argparse.Namespace) -> int:
 
 
 def _pmc_check(args: argparse.Namespace) -> int:
-    from turning_force.core.machine import load_machine
+    from turning_force.core.pmc.machine import load_machine
     from turning_force.io.pmc_check import check_pmc
 
     machine = load_machine(args.machine)

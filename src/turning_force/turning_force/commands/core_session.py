@@ -1,6 +1,6 @@
 """``turning-force run --core --out BAG``: the core loop's run recorded as the graph records it.
 
-:func:`turning_force.core.batch.run_core` keeps every block of a closed-loop run (the DAQ's
+:func:`turning_force.core.kernel.batch.run_core` keeps every block of a closed-loop run (the DAQ's
 samples, the chain's estimate, command and decision, the plant's state); this writes them as the
 lock-step graph's session (:func:`turning_force.commands.run.run_lockstep` with
 ``session_recorder``) holds them: the same topics and message types, each message with the
@@ -34,9 +34,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.batch import CoreRun, run_core
 from turning_force.core.experiment import Experiment
-from turning_force.core.overrides import get_table
+from turning_force.core.kernel.batch import CoreRun, run_core
+from turning_force.core.pmc.overrides import get_table
 from turning_force.session import codec
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
@@ -243,7 +243,7 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
 def _cuts(store: Any, run: CoreRun, experiment: Experiment, end_ns: IntArray
           ) -> tuple[tuple[bytes, IntArray], IntArray]:
     """The cut log's messages (bytes, offsets) and the block whose answer ended each cut: the
-    block ``debounce`` blocks after its last (:class:`turning_force.core.shopfloor.CutLog`).
+    block ``debounce`` blocks after its last (:class:`turning_force.core.pmc.shopfloor.CutLog`).
     The times are the bridge's: its clock's nanoseconds x 1e-9 at the blocks' ends (``end_ns``),
     where the core loop's ``t0 + m dt`` may differ in the last bit."""
     if not run.cuts:

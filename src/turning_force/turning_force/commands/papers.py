@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from turning_force.core.experiment import load_experiment
-from turning_force.core.simulate import SimulationResult, simulate
+from turning_force.core.kernel.simulate import SimulationResult, simulate
 
 __all__ = ['ROWS', 'Row', 'RowResult', 'format_table', 'reproduce']
 

@@ -23,10 +23,10 @@ import numpy as np
 
 from turning_force.core.experiment import Experiment, load_experiment
 from turning_force.core.identify import identify
-from turning_force.core.lathe import LathePlant
-from turning_force.core.plant import PlantSettings
-from turning_force.core.record import record
-from turning_force.core.simulate import simulate
+from turning_force.core.kernel.record import record
+from turning_force.core.kernel.simulate import simulate
+from turning_force.core.plant.lathe import LathePlant
+from turning_force.core.plant.settings import PlantSettings
 
 __all__ = ['CONTROLLERS', 'MATRIX', 'Scenario', 'identified_sets', 'mean_floor_n', 'model_sets',
            'run_scenario', 'scenario_experiment']

@@ -1,7 +1,7 @@
 """Parameter sweeps, and the replay of many sessions, on all local cores or a Dask cluster.
 
 :func:`sweep` runs every combination of a grid of settings, closed loop on the simulator
-(:func:`turning_force.core.simulate.simulate`) or open loop on a recorded session
+(:func:`turning_force.core.kernel.simulate.simulate`) or open loop on a recorded session
 (:func:`turning_force.session.replay.replay`), and scores each point with the DESIGN.md
 metrics. A grid has one axis per setting:
 
@@ -392,7 +392,7 @@ def _run_chunk(job: _Job, start: int, stop: int) -> list[dict[str, Any]]:
 
 
 def _simulate_point(experiment: Experiment) -> dict[str, Any]:
-    from turning_force.core.simulate import simulate
+    from turning_force.core.kernel.simulate import simulate
 
     result = simulate(experiment)
     return {name: result.metrics.get(name, math.nan) for name in METRIC_NAMES}

@@ -29,10 +29,10 @@ import yaml
 from turning_force.core import shared
 from turning_force.core.control import ControllerSettings
 from turning_force.core.errors import ConfigError
-from turning_force.core.estimation import EstimatorSettings
+from turning_force.core.estimation.settings import EstimatorSettings
 from turning_force.core.metrics import MetricSettings
-from turning_force.core.plant import PlantSettings
-from turning_force.core.pmc import BridgeSettings
+from turning_force.core.plant.settings import PlantSettings
+from turning_force.core.pmc.settings import BridgeSettings
 from turning_force.core.settings import Settings, setting
 from turning_force.core.yamlfile import load_yaml, read_text, yaml_error_text
 

@@ -46,8 +46,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy import optimize, signal
 
-from turning_force.core.drive import CurrentForceMap, FrictionModel
 from turning_force.core.errors import TurningForceError
+from turning_force.core.plant.drive import CurrentForceMap, FrictionModel
 from turning_force.core.settings import Settings, setting
 
 __all__ = [

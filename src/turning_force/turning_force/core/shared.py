@@ -1,23 +1,20 @@
 """Settings that several nodes share, declared once.
 
-The plant, the controller and the PMC bridge each need some of the same machine facts (the
-control period, the spindle speed, the programmed feed, the override table, the feed axis's
-force range). Each is declared here once, with its description, unit and range, and the
-settings classes take their fields from these factories, so that the value a file gives under
-``/**`` is checked by one rule wherever it lands.
-"""
+The plant, the controller and the PMC bridge each need some of the same machine facts (the control
+period, the spindle speed, the programmed feed, the feed axis's force range; the override table's
+is :func:`turning_force.core.pmc.overrides.override_table`). Each is declared here once, with its
+description, unit and range, and the settings classes take their fields from these factories, so
+that the value a file gives under ``/**`` is checked by one rule wherever it lands. """
 
 from __future__ import annotations
 
 from typing import Any
 
-from turning_force.core.overrides import TABLES
 from turning_force.core.settings import setting
 
 __all__ = [
     'control_period_s',
     'max_feed_force_n',
-    'override_table',
     'programmed_feed_mm_rev',
     'spindle_speed_rpm',
 ]
@@ -36,11 +33,6 @@ def spindle_speed_rpm() -> Any:
 def programmed_feed_mm_rev() -> Any:
     return setting(0.2, 'Programmed feed (the 100 % override)', 'mm/rev', low=0.0,
                    low_open=True, high=5.0)
-
-
-def override_table() -> Any:
-    return setting('fanuc_0t_4bit', "Override table of the machine's PMC; its range bounds the "
-                   'command', choices=tuple(TABLES))
 
 
 def max_feed_force_n() -> Any:

@@ -31,7 +31,7 @@ from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
 from turning_force.core.errors import TurningForceError
-from turning_force.core.machine import Machine, ModbusTcp
+from turning_force.core.pmc.machine import Machine, ModbusTcp
 
 __all__ = [
     'CoilReader',

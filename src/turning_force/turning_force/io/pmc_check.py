@@ -15,7 +15,7 @@ from typing import TextIO
 
 import numpy as np
 
-from turning_force.core.machine import Machine
+from turning_force.core.pmc.machine import Machine
 from turning_force.io.modbus_pmc import ModbusPmc, PmcIoError, pattern_text
 
 __all__ = ['check_pmc']

@@ -35,7 +35,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.simulator.simutils import SimUtils
 
 from turning_force.core.errors import ConfigError, TurningForceError
-from turning_force.core.machine import Machine, load_machine
+from turning_force.core.pmc.machine import Machine, load_machine
 from turning_force.io.modbus_pmc import quiet_pymodbus
 
 __all__ = ['PmcSimulation', 'ServerError', 'SimulatedPmcServer', 'Write', 'main',

@@ -18,9 +18,9 @@ from turning_force_msgs.msg import CutRecord as CutRecordMsg
 from turning_force_msgs.msg import ForceEstimate as ForceEstimateMsg
 from turning_force_msgs.msg import MachineInputs, ServoCurrents
 
-from turning_force.core.drive import CurrentBlock
-from turning_force.core.estimation import EstimateStatus, ForceEstimate
-from turning_force.core.shopfloor import CutRecord, InputValues
+from turning_force.core.estimation.settings import EstimateStatus, ForceEstimate
+from turning_force.core.plant.drive import CurrentBlock
+from turning_force.core.pmc.shopfloor import CutRecord, InputValues
 
 __all__ = [
     'block_to_servo_currents',

@@ -22,7 +22,7 @@ from std_msgs.msg import Float64
 from turning_force_msgs.msg import FeedCommand, ForceEstimate
 
 from turning_force.core.control import ControllerSettings, make_controller
-from turning_force.core.loop import command_for
+from turning_force.core.kernel.chain import command_for
 from turning_force.nodes.convert import estimate_from_msg
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters

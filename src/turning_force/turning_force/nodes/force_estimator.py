@@ -2,13 +2,12 @@
 
 Subscribes ``servo/currents`` (turning_force_msgs/ServoCurrents); publishes ``force/estimate``
 (turning_force_msgs/ForceEstimate), one per block. The work is
-:class:`turning_force.core.estimator.ForceEstimator`; parameters are
-:class:`turning_force.core.estimation.EstimatorSettings` (``ros2 param describe`` lists them
-with units and ranges). A block with non-finite samples or an out-of-order stamp is published
-as ``STATUS_INVALID_INPUT`` with the last good, finite force (stamped as the block it
-answers); when blocks stop coming for
-five block periods, ``STATUS_STALE`` estimates say so every ``STALE_CHECK_S``.
-"""
+:class:`turning_force.core.estimation.estimator.ForceEstimator`; parameters are
+:class:`turning_force.core.estimation.settings.EstimatorSettings` (``ros2 param describe`` lists
+them with units and ranges). A block with non-finite samples or an out-of-order stamp is published
+as ``STATUS_INVALID_INPUT`` with the last good, finite force (stamped as the block it answers);
+when blocks stop coming for five block periods, ``STATUS_STALE`` estimates say so every
+``STALE_CHECK_S``. """
 
 from __future__ import annotations
 
@@ -20,8 +19,8 @@ from rclpy.node import Node
 from turning_force_msgs.msg import ForceEstimate, ServoCurrents
 
 from turning_force.core import kernel
-from turning_force.core.estimation import EstimateStatus, EstimatorSettings
-from turning_force.core.estimator import ForceEstimator
+from turning_force.core.estimation.estimator import ForceEstimator
+from turning_force.core.estimation.settings import EstimateStatus, EstimatorSettings
 from turning_force.nodes.convert import (
     estimate_to_msg,
     last_sample_ns,

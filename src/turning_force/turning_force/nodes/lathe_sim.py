@@ -11,7 +11,7 @@ published before the block's currents so that the bridge has them when it answer
 table dynamometer's reading of each block, for ``turning-force calibrate --map``); with
 ``publish_clock`` it owns ``/clock`` and advances it one control period per step (lock-step
 simulation). Parameters:
-:class:`turning_force.core.plant.PlantSettings`, and two it shares with ``pmc_bridge``:
+:class:`turning_force.core.plant.settings.PlantSettings`, and two it shares with ``pmc_bridge``:
 ``machine_file`` and ``backend``. With ``backend: modbus_tcp`` the override is not taken from
 the topic but read, each step, from the coils of the Modbus/TCP server that stands in for the
 PMC's input image, and decoded with the machine file, as the PMC would: the loop closes
@@ -45,10 +45,10 @@ from turning_force_msgs.msg import CuttingState, FeedOverride, MachineInputs, Se
 
 from turning_force.core import kernel
 from turning_force.core.errors import ConfigError, TurningForceError
-from turning_force.core.lathe import LathePlant
-from turning_force.core.machine import load_machine
-from turning_force.core.overrides import get_table
-from turning_force.core.plant import Dynamometer, PlantBlock, PlantSettings
+from turning_force.core.plant.lathe import LathePlant
+from turning_force.core.plant.settings import Dynamometer, PlantBlock, PlantSettings
+from turning_force.core.pmc.machine import load_machine
+from turning_force.core.pmc.overrides import get_table
 from turning_force.nodes.convert import (
     block_to_servo_currents,
     inputs_to_msg,

@@ -3,8 +3,8 @@
 Subscribes ``control/feed_command`` (turning_force_msgs/FeedCommand) and ``force/estimate``
 (turning_force_msgs/ForceEstimate); publishes ``pmc/feed_override``
 (turning_force_msgs/FeedOverride) and writes the PMC backend. The decisions (disarmed,
-watchdog, invalid command, overload hold) are :class:`turning_force.core.gate.OverrideGate`'s;
-parameters: :class:`turning_force.core.pmc.BridgeSettings`, and ``autostart``.
+watchdog, invalid command, overload hold) are :class:`turning_force.core.pmc.gate.OverrideGate`'s;
+parameters: :class:`turning_force.core.pmc.settings.BridgeSettings`, and ``autostart``.
 
 Lifecycle, the ROS 2 convention for hardware drivers (``~/change_state``, ``~/get_state``, as
 ``ros2 lifecycle set`` drives them):
@@ -26,7 +26,7 @@ told), says why in ``FeedOverride`` (``REASON_IO_FAULT``) and ``/diagnostics``, 
 with back-off. The machine's inputs (program enable, threading, operator dial) are read each
 period into :attr:`PmcBridgeNode.inputs`; :meth:`PmcBridgeNode.set_output` sets its outputs.
 
-The shop-floor behaviours (:mod:`turning_force.core.shopfloor`: program enable, threading,
+The shop-floor behaviours (:mod:`turning_force.core.pmc.shopfloor`: program enable, threading,
 operator dial, rise limit, feed floor, air cut, overload reactions, tool breakage, teach-in, cut
 log) are the gate's. Their inputs come from the module where the machine file wires them, else
 from ``machine/inputs`` (turning_force_msgs/MachineInputs: ``lathe_sim`` in simulation); every
@@ -60,12 +60,12 @@ from turning_force_msgs.msg import (
 
 from turning_force.core import kernel
 from turning_force.core.errors import ConfigError, TurningForceError
-from turning_force.core.gate import OverrideGate
-from turning_force.core.loop import command_for_would_act
-from turning_force.core.machine import Machine, load_machine
-from turning_force.core.overrides import OverrideTable
-from turning_force.core.pmc import BridgeSettings, Decision, Reason
-from turning_force.core.shopfloor import (
+from turning_force.core.kernel.chain import command_for_would_act
+from turning_force.core.pmc.gate import OverrideGate
+from turning_force.core.pmc.machine import Machine, load_machine
+from turning_force.core.pmc.overrides import OverrideTable
+from turning_force.core.pmc.settings import BridgeSettings, Decision, Reason
+from turning_force.core.pmc.shopfloor import (
     NO_INPUTS,
     InputValues,
     Learned,

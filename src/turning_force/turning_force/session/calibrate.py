@@ -3,7 +3,7 @@
 An air cut is the programmed feed with no tool contact, recorded with the option disarmed: the
 q-axis current is then friction plus Eq. 26's zero-force offset. Each session, once its feed has
 settled, gives one point (feed, friction current); two or more feeds fit Eq. 25's curve
-(:func:`turning_force.core.estimation.calibrate_friction`). The result is the four
+(:func:`turning_force.core.estimation.settings.calibrate_friction`). The result is the four
 ``force_estimator`` parameters that describe it.
 """
 
@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from turning_force.core.drive import CurrentBlock, FrictionModel
 from turning_force.core.errors import ConfigError
-from turning_force.core.estimation import air_cut_point, calibrate_friction
+from turning_force.core.estimation.settings import air_cut_point, calibrate_friction
+from turning_force.core.plant.drive import CurrentBlock, FrictionModel
 from turning_force.session.bag import BagError
 from turning_force.session.reader import Session
 

@@ -22,8 +22,7 @@ import numpy.typing as npt
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.rosbag2 import ReaderError
 
-from turning_force.core.drive import clarke_park
-from turning_force.core.estimation import EstimateStatus
+from turning_force.core.estimation.settings import EstimateStatus
 from turning_force.core.identify import (
     Identification,
     IdentifySettings,
@@ -32,6 +31,7 @@ from turning_force.core.identify import (
     calibrate_map,
     identify,
 )
+from turning_force.core.plant.drive import clarke_park
 from turning_force.session.bag import BagError, typestore
 from turning_force.session.reader import Session, read_session
 

@@ -41,12 +41,12 @@ from rosbags.typesys import (
 )
 from rosbags.typesys.store import Typestore
 
-from turning_force.core.batch import CurrentArrays
-from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import Experiment, build_experiment, parse_experiment
+from turning_force.core.kernel.batch import CurrentArrays
 from turning_force.core.metrics import compute_metrics
-from turning_force.core.shopfloor import CutRecord, InputValues
+from turning_force.core.plant.drive import CurrentBlock
+from turning_force.core.pmc.shopfloor import CutRecord, InputValues
 from turning_force.session import codec
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,

@@ -1,7 +1,7 @@
 """Replay: yesterday's recorded currents through today's control chain.
 
 Open loop: the recorded ``servo/currents`` go through the same core code the nodes run (the
-estimator, the controller and the PMC gate: :class:`turning_force.core.loop.ControlChain`),
+estimator, the controller and the PMC gate: :class:`turning_force.core.kernel.chain.ControlChain`),
 with the recorded parameters changed by ``--set``; the plant is not re-simulated, so the new
 commands do not change the recorded force. Recorded and re-run are compared on the same
 footing: the estimated force against the reference, and the override (and the gate's reason)
@@ -20,10 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.batch import CurrentArrays, InputArrays, replay_chain
-from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import NoCutError
 from turning_force.core.experiment import Experiment, parse_set
+from turning_force.core.kernel.batch import CurrentArrays, InputArrays, replay_chain
+from turning_force.core.plant.drive import CurrentBlock
 from turning_force.session.bag import BagError
 from turning_force.session.reader import Session, estimate_metrics, recorded_reachable
 

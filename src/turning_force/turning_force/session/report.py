@@ -24,7 +24,7 @@ import numpy.typing as npt
 from matplotlib.transforms import Bbox
 
 from turning_force.core.metrics import METRIC_NAMES
-from turning_force.core.shopfloor import CutRecord
+from turning_force.core.pmc.shopfloor import CutRecord
 from turning_force.session.reader import Session
 
 FloatArray = npt.NDArray[np.float64]

@@ -3,7 +3,7 @@
 Each controller takes, once per control period, the estimated force and force rate and the
 reference, and returns the feedrate override it asks for: continuous, in percent of the programmed
 feed, inside the override table's range. The PMC's quantisation happens after it (see
-:mod:`turning_force.core.overrides`); the controllers do not see it, as on a real CNC.
+:mod:`turning_force.core.pmc.overrides`); the controllers do not see it, as on a real CNC.
 
 One module per law, in :mod:`.laws` (or in a package of its own, through the
 ``turning_force.laws`` entry point group: :mod:`.registry`); ours:

@@ -37,7 +37,7 @@ from turning_force.core.control.law import (
     ControlOutput,
 )
 from turning_force.core.control.registry import CONTROLLERS, names
-from turning_force.core.overrides import OverrideTable, get_table
+from turning_force.core.pmc.overrides import OverrideTable, get_table
 
 if TYPE_CHECKING:
     from turning_force.core.control.settings import ControllerSettings

@@ -36,7 +36,7 @@ import numpy.typing as npt
 
 from turning_force.core import shared
 from turning_force.core.compiled import compiled, pymax, pymin
-from turning_force.core.overrides import get_table
+from turning_force.core.pmc.overrides import get_table, override_table
 from turning_force.core.settings import Settings, setting
 
 __all__ = [
@@ -102,7 +102,7 @@ class ControllerBase(Settings):
     control_period_s: float = shared.control_period_s()
     spindle_speed_rpm: float = shared.spindle_speed_rpm()
     programmed_feed_mm_rev: float = shared.programmed_feed_mm_rev()
-    override_table: str = shared.override_table()
+    override_table: str = override_table()
     max_feed_force_n: float = shared.max_feed_force_n()
     quantiser: str = setting('error_feedback', 'How a request becomes a PMC level: the '
                              "bridge's nearest level, or error feedback (noise shaping: the "

@@ -1,13 +1,14 @@
 """The compiled kernel's loader and loops.
 
-Each algorithm is written once, compiled, in the module of its stage of the signal chain: the
-plant (:mod:`turning_force.core.lathe`), the estimator (:mod:`turning_force.core.estimator`), the
-control laws (:mod:`turning_force.core.control.laws`), the PMC gate with the shop
-floor's behaviours (:mod:`turning_force.core.gate`). They run compiled on every path: the nodes one
-block at a time (:class:`~turning_force.core.lathe.LathePlant`,
-:class:`~turning_force.core.estimator.ForceEstimator`,
+Each algorithm is written once, compiled, in the module of its stage of the signal chain: the plant
+(:mod:`turning_force.core.plant.lathe`), the estimator
+(:mod:`turning_force.core.estimation.estimator`), the control laws
+(:mod:`turning_force.core.control.laws`), the PMC gate with the shop floor's behaviours
+(:mod:`turning_force.core.pmc.gate`). They run compiled on every path: the nodes one block at a
+time (:class:`~turning_force.core.plant.lathe.LathePlant`,
+:class:`~turning_force.core.estimation.estimator.ForceEstimator`,
 :class:`~turning_force.core.control.base.Controller`,
-:class:`~turning_force.core.gate.OverrideGate`), the loops here (:mod:`.loops`: the core loop,
+:class:`~turning_force.core.pmc.gate.OverrideGate`), the loops here (:mod:`.loops`: the core loop,
 replay, sweeps) many blocks at once. The same functions run as plain Python under numba's own
 switch (``NUMBA_DISABLE_JIT=1``), for debugging and coverage.
 

@@ -2,12 +2,12 @@
 inputs, the estimator, the controller, the gate), :func:`run_core` (the closed loop on the
 simulated lathe), :func:`run_core_kept` (the same, keeping every block for ``run --core --out``)
 and :func:`replay_blocks` (open loop over recorded currents). Each stage's algorithm is its own
-module's (:mod:`turning_force.core.lathe`, :mod:`turning_force.core.estimator`,
-:mod:`turning_force.core.control.update`, :mod:`turning_force.core.gate`); the loops only call
+module's (:mod:`turning_force.core.plant.lathe`, :mod:`turning_force.core.estimation.estimator`,
+:mod:`turning_force.core.control.update`, :mod:`turning_force.core.pmc.gate`); the loops only call
 them, in the graph's order.
 
-Entry points have explicit signatures: importing this module compiles them, or with a warm
-cache (``cache=True``, in :func:`turning_force.core.kernel.cache_dir`) loads them from disk.
+Entry points have explicit signatures: each is compiled for it (or loaded from the cache,
+``cache=True``, in :func:`turning_force.core.kernel.cache_dir`) at its first call.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from turning_force.core.compiled import (
 )
 from turning_force.core.control.law import C_REF, OUT_ERR, OUT_PCT, OUT_REACH, OUT_S
 from turning_force.core.control.update import controller_update
-from turning_force.core.estimator import (
+from turning_force.core.estimation.estimator import (
     ES_DCODE,
     ES_DVAL,
     ES_F,
@@ -35,7 +35,8 @@ from turning_force.core.estimator import (
     SATURATED,
     estimator_update,
 )
-from turning_force.core.gate import (
+from turning_force.core.plant.lathe import P_DT, P_N, plant_step
+from turning_force.core.pmc.gate import (
     CUT_FIELDS,
     CUT_READY,
     DEC_ALARM,
@@ -57,7 +58,6 @@ from turning_force.core.gate import (
     gate_on_command,
     gate_on_estimate,
 )
-from turning_force.core.lathe import P_DT, P_N, plant_step
 
 # --- chain rows (core/batch.py ChainTrace): the estimate, the command (CH_ACTED 0: silent),
 # the decision and the gate's outputs, one row per block
@@ -73,12 +73,12 @@ def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
                t0: float, dt: float, u: np.ndarray, v: np.ndarray, angle: np.ndarray,
                feed: np.ndarray, work: np.ndarray, inputs: np.ndarray, out: np.ndarray,
                dec: np.ndarray, cut: np.ndarray, cuts: np.ndarray, ncuts: np.ndarray) -> bool:
-    """One block through the chain (:class:`turning_force.core.loop.ControlChain` states it):
-    the machine's inputs (PE, threading, dial) -> estimator -> gate.on_estimate -> controller
+    """One block through the chain (:class:`turning_force.core.kernel.chain.ControlChain` states
+    it): the machine's inputs (PE, threading, dial) -> estimator -> gate.on_estimate -> controller
     -> gate.on_command -> gate.answer (DEC_* into ``dec``); a learning cut that has just been
     learned sets the controller's reference from the next block on; a cut that ended goes to
-    ``cuts`` (row ncuts[0], while there is room; ncuts[0] counts them all). Returns whether
-    the controller acted (``out`` its command)."""
+    ``cuts`` (row ncuts[0], while there is room; ncuts[0] counts them all). Returns whether the
+    controller acted (``out`` its command)."""
     t_end = t0 + u.size * dt
     gate_inputs(gs, inputs[0], inputs[1], inputs[2])
     status = estimator_update(ep, es, t0, dt, u, v, angle, feed, work)

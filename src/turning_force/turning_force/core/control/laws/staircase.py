@@ -33,7 +33,7 @@ from turning_force.core.control.law import (
     Law,
     clip,
 )
-from turning_force.core.overrides import get_table
+from turning_force.core.pmc.overrides import get_table
 from turning_force.core.settings import setting
 
 __all__ = ['LAW', 'Settings']

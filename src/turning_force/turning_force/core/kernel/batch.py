@@ -1,18 +1,18 @@
 """The control chain over whole runs of blocks at once: replay (open loop, recorded currents)
 and the closed core loop keeping everything a session records.
 
-A run of DAQ blocks is held as arrays (:class:`CurrentArrays`, n blocks of m samples), and what
-the chain did as one row per block (:class:`ChainTrace`): the estimate, the command, the gate's
+A run of DAQ blocks is held as arrays (:class:`CurrentArrays`, n blocks of m samples), and what the
+chain did as one row per block (:class:`ChainTrace`): the estimate, the command, the gate's
 decision and what ``FeedOverride`` carries of it. :func:`replay_chain` is the loop of
-:mod:`turning_force.session.replay` (arming and disarming at the recorded times, each decision
-made at the end of its block); :func:`run_core` is :func:`turning_force.core.simulate.simulate`
+:mod:`turning_force.session.replay` (arming and disarming at the recorded times, each decision made
+at the end of its block); :func:`run_core` is :func:`turning_force.core.kernel.simulate.simulate`
 keeping every sample, estimate, command and decision besides its trace.
 
 Both run compiled (``replay_blocks`` and ``run_core_kept`` of
 :mod:`turning_force.core.kernel.loops`): the same estimator, controller and gate the nodes run.
 Blocks of differing lengths or sample periods (no one array holds them) go through
-:class:`turning_force.core.loop.ControlChain` one block at a time: the same functions again.
-"""
+:class:`turning_force.core.kernel.chain.ControlChain` one block at a time: the same functions
+again. """
 
 from __future__ import annotations
 
@@ -25,15 +25,15 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core import kernel
-from turning_force.core.drive import CurrentBlock
-from turning_force.core.estimation import EstimatorSettings
+from turning_force.core.estimation.settings import EstimatorSettings
 from turning_force.core.experiment import Experiment
-from turning_force.core.overrides import OverrideTable, get_table
-from turning_force.core.shopfloor import CutRecord, InputValues
+from turning_force.core.plant.drive import CurrentBlock
+from turning_force.core.pmc.overrides import OverrideTable, get_table
+from turning_force.core.pmc.shopfloor import CutRecord, InputValues
 
 if TYPE_CHECKING:   # the compiled chain, imported where it runs: reading a session needs none
-    from turning_force.core.loop import ChainStep, ControlChain
-    from turning_force.core.simulate import SimulationResult
+    from turning_force.core.kernel.chain import ChainStep, ControlChain
+    from turning_force.core.kernel.simulate import SimulationResult
 
 __all__ = ['ChainTrace', 'CoreRun', 'CurrentArrays', 'InputArrays', 'replay_chain', 'run_core']
 
@@ -300,7 +300,7 @@ def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[Curr
                               progress)
     seen = (None if inputs is None else
             inputs if isinstance(inputs, InputArrays) else InputArrays.collect(inputs, n))
-    from turning_force.core.loop import ControlChain
+    from turning_force.core.kernel.chain import ControlChain
 
     chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
                          reference_force_n=reference_force_n)
@@ -328,7 +328,7 @@ def _replay_blocks(experiment: Experiment, blocks: Callable[[int], CurrentBlock]
                    reference_force_n: float | None,
                    progress: Callable[[int, int], None] | None = None) -> ChainTrace:
     """:class:`ControlChain` block by block, for blocks no one array holds."""
-    from turning_force.core.loop import ControlChain
+    from turning_force.core.kernel.chain import ControlChain
 
     chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
                          reference_force_n=reference_force_n)
@@ -369,7 +369,7 @@ def _replay_compiled(chain: ControlChain, currents: CurrentArrays,
     t0, u, v = _c(currents.t0_s), _c(currents.phase_u_a), _c(currents.phase_v_a)
     angle, feed = _c(currents.rotor_angle_rad), _c(currents.feed_rate_mm_min)
     inputs = _inputs_matrix(seen, n)
-    from turning_force.core.gate import CUT_FIELDS
+    from turning_force.core.pmc.gate import CUT_FIELDS
 
     cuts, ncuts = np.zeros((n // 2 + 1, CUT_FIELDS)), np.zeros(1)
     change = 0
@@ -399,7 +399,12 @@ def _rows_into(jit: Any, rows: FloatArray, trace: ChainTrace, first: int,
     """The kernel's chain rows of blocks ``first`` .. ``first + len(rows) - 1`` into the
     trace's arrays (the inputs the decisions saw are not the kernel's business: the caller
     fills them); the estimate's details in the reference's words."""
-    from turning_force.core.estimator import D_NONE, D_REZEROED, detail_text, rezeroed_text
+    from turning_force.core.estimation.estimator import (
+        D_NONE,
+        D_REZEROED,
+        detail_text,
+        rezeroed_text,
+    )
 
     r = rows
     sl = slice(first, first + len(rows))
@@ -453,12 +458,12 @@ def pmc_codes(table: OverrideTable, applied_pct: FloatArray) -> npt.NDArray[np.i
 # --- the closed loop ------------------------------------------------------------------------
 
 def run_core(experiment: Experiment) -> CoreRun:
-    """:func:`turning_force.core.simulate.simulate`, keeping what a session records: every DAQ
-    sample the plant produced, the chain's estimate, command and decision for each block, and
+    """:func:`turning_force.core.kernel.simulate.simulate`, keeping what a session records: every
+    DAQ sample the plant produced, the chain's estimate, command and decision for each block, and
     the plant's state at each block's end; ``result`` is what simulate gives, bit for bit (its
     ``realtime_factor`` aside)."""
-    from turning_force.core.gate import cut_record
-    from turning_force.core.simulate import CoreArrays, run_loop
+    from turning_force.core.kernel.simulate import CoreArrays, run_loop
+    from turning_force.core.pmc.gate import cut_record
 
     jit = kernel.load()
     plant_settings = experiment.plant

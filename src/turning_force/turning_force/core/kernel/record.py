@@ -1,11 +1,10 @@
 """The core loop, keeping every sample: a session's arrays without ROS.
 
-:func:`turning_force.core.simulate.simulate` keeps one row per control period; identification
-reads the DAQ's samples (feed rate, q-axis current) and a dynamometer beside them. :func:`record`
-runs the same loop (plant -> :class:`~turning_force.core.loop.ControlChain` -> plant, the
-override applied one block later) and returns what a recorded session holds, as a
-:class:`~turning_force.core.identify.Recording`, with the simulator's truth beside it.
-"""
+:func:`turning_force.core.kernel.simulate.simulate` keeps one row per control period;
+identification reads the DAQ's samples (feed rate, q-axis current) and a dynamometer beside them.
+:func:`record` runs the same loop (plant -> :class:`~turning_force.core.kernel.chain.ControlChain`
+-> plant, the override applied one block later) and returns what a recorded session holds, as a
+:class:`~turning_force.core.identify.Recording`, with the simulator's truth beside it. """
 
 from __future__ import annotations
 
@@ -14,14 +13,14 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.drive import clarke_park
-from turning_force.core.estimation import EstimateStatus
+from turning_force.core.estimation.settings import EstimateStatus
 from turning_force.core.experiment import Experiment
 from turning_force.core.identify import Recording
-from turning_force.core.lathe import LathePlant
-from turning_force.core.loop import ControlChain
-from turning_force.core.overrides import get_table
-from turning_force.core.plant import Dynamometer, PlantSettings
+from turning_force.core.kernel.chain import ControlChain
+from turning_force.core.plant.drive import clarke_park
+from turning_force.core.plant.lathe import LathePlant
+from turning_force.core.plant.settings import Dynamometer, PlantSettings
+from turning_force.core.pmc.overrides import get_table
 
 __all__ = ['CoreRecording', 'record']
 

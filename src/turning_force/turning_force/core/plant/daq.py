@@ -5,13 +5,13 @@ motor with Hall-effect current sensors; the third phase follows from ``i_u + i_v
 The rotor's electrical angle, needed for the d-q transform, comes from the motor's encoder (a
 counter of A/B quadrature edges) or from an analog angle output of the drive. A hardware-timed
 DAQ delivers both in blocks on one sample clock; :class:`DaqConverter` turns each block into a
-:class:`~turning_force.core.drive.CurrentBlock`:
+:class:`~turning_force.core.plant.drive.CurrentBlock`:
 
 - phase current ``i = (u_volts - offset_v) * hall_scale_a_per_v`` per phase;
 - mechanical position in motor revolutions: ``counts / encoder_counts_per_rev`` (encoder) or
   the unwrapped electrical angle over ``2 pi pole_pairs`` (analog angle);
 - electrical angle ``theta = mod(zero + 2 pi pole_pairs revs, 2 pi)`` (as
-  :func:`~turning_force.core.drive.rotor_angle_rad` for a motor on the ball screw);
+  :func:`~turning_force.core.plant.drive.rotor_angle_rad` for a motor on the ball screw);
 - feed rate from the position ``feed_rate_window`` samples back:
   ``v[k] = pitch (revs[k] - revs[k - W]) / (W T) * 60`` [mm/min], so that one encoder count
   does not become a spike; the window reaches into the previous block.
@@ -27,8 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import ConfigError
+from turning_force.core.plant.drive import CurrentBlock
 from turning_force.core.settings import Settings, setting
 
 __all__ = ['DaqConverter', 'DaqSettings']

@@ -49,7 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from turning_force.core.errors import ConfigError
-from turning_force.core.overrides import OverrideTable, get_table
+from turning_force.core.pmc.overrides import OverrideTable, get_table
 from turning_force.core.yamlfile import read_yaml_file
 
 __all__ = [

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.drive import (
+from turning_force.core.plant.drive import (
     CurrentBlock,
     CurrentForceMap,
     FeedDriveSettings,

@@ -29,13 +29,13 @@ import numpy.typing as npt
 
 from turning_force.core.control import ControllerSettings, ControlOutput, make_controller
 from turning_force.core.control.base import Controller
-from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import ConfigError
-from turning_force.core.estimation import EstimatorSettings, ForceEstimate
-from turning_force.core.estimator import ForceEstimator
-from turning_force.core.gate import OverrideGate
-from turning_force.core.pmc import BridgeSettings, Decision
-from turning_force.core.shopfloor import CutRecord, InputValues, Learned, taught_reference
+from turning_force.core.estimation.estimator import ForceEstimator
+from turning_force.core.estimation.settings import EstimatorSettings, ForceEstimate
+from turning_force.core.plant.drive import CurrentBlock
+from turning_force.core.pmc.gate import OverrideGate
+from turning_force.core.pmc.settings import BridgeSettings, Decision
+from turning_force.core.pmc.shopfloor import CutRecord, InputValues, Learned, taught_reference
 
 __all__ = ['ChainStep', 'ControlChain', 'command_for', 'command_for_would_act']
 

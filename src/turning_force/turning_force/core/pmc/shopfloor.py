@@ -24,13 +24,13 @@ Autofeed) bring behaviours around the control law that a shop relies on. Each is
 - Cut log (AFC's log): per cut from engagement to exit, the time, the time at a fixed 100 %
   override, max and mean force, lowest override, overload events, reachable fraction.
 
-The safety gate keeps precedence over all of it (:mod:`turning_force.core.pmc`): the overload
-hold, disarmed, the watchdog and invalid commands decide first. Nothing here writes more than
-the controller asked for, except the stand-downs to the programmed feed (threading, the program
-not enabling the option, a learning cut) and the feed floor, which is off by default.
+The safety gate keeps precedence over all of it (:mod:`turning_force.core.pmc.settings`): the
+overload hold, disarmed, the watchdog and invalid commands decide first. Nothing here writes more
+than the controller asked for, except the stand-downs to the programmed feed (threading, the
+program not enabling the option, a learning cut) and the feed floor, which is off by default.
 
 The behaviours are written once, compiled, with the safety gate (``gate_*`` in
-:mod:`turning_force.core.gate`, run by its ``OverrideGate`` and by the compiled loops), so that
+:mod:`turning_force.core.pmc.gate`, run by its ``OverrideGate`` and by the compiled loops), so that
 the core loop, replay and the bridge decide alike. This module holds their settings, the
 teach-in file and the records they give.
 """

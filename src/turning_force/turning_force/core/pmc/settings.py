@@ -13,7 +13,7 @@ The controller asks; the gate decides what is written, in this order:
 4. Invalid command: a request that is not finite or outside the table's range (a controller
    clips to the range; anything outside it is a fault, not a value to clamp): the safe
    override.
-5. The shop-floor behaviours (:mod:`turning_force.core.shopfloor`), after all of the above:
+5. The shop-floor behaviours (:mod:`turning_force.core.pmc.shopfloor`), after all of the above:
    a tool-breakage hold and an overload reaction's hold (latched until re-armed), the
    stand-downs to the programmed feed (threading, the program not enabling the option), a
    learning cut at the programmed feed; then the request, shaped: feed floor while cutting,
@@ -25,7 +25,7 @@ Every decision carries its reason (the ``REASON_*`` of ``FeedOverride``) and a s
 
 Per control block the gate takes the machine's inputs (:meth:`OverrideGate.on_inputs`), the
 force estimate (:meth:`OverrideGate.on_estimate`) and the command
-(:meth:`OverrideGate.on_command`, :mod:`turning_force.core.gate`, where the rules are written
+(:meth:`OverrideGate.on_command`, :mod:`turning_force.core.pmc.gate`, where the rules are written
 once, compiled); :meth:`OverrideGate.answer` decides for the block and moves
 the per-block state on (rise limit, cut log). :meth:`OverrideGate.decide` decides without
 moving it: the bridge's timer asks it what time alone changes (a stale command).
@@ -37,13 +37,13 @@ import enum
 from dataclasses import dataclass
 
 from turning_force.core import shared
-from turning_force.core.overrides import get_table
-from turning_force.core.settings import setting
-from turning_force.core.shopfloor import (
+from turning_force.core.pmc.overrides import get_table, override_table
+from turning_force.core.pmc.shopfloor import (
     NO_INPUTS,
     InputValues,
     ShopFloorSettings,
 )
+from turning_force.core.settings import setting
 
 __all__ = ['BridgeSettings', 'Decision', 'Reason']
 
@@ -71,7 +71,7 @@ class BridgeSettings(ShopFloorSettings):
 
     SECTION = 'pmc_bridge'
 
-    override_table: str = shared.override_table()
+    override_table: str = override_table()
     control_period_s: float = shared.control_period_s()
     max_feed_force_n: float = shared.max_feed_force_n()
     armed: bool = setting(False, "Write the controller's override (true) or the programmed "

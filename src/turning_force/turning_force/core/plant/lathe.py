@@ -1,7 +1,6 @@
 """The simulated lathe, compiled: PMC dead time, CNC servo, cutting process and feed-drive
-currents, one control block at a time (:mod:`turning_force.core.plant` states the model and its
-settings).
-"""
+currents, one control block at a time (:mod:`turning_force.core.plant.settings` states the model
+and its settings). """
 
 from __future__ import annotations
 
@@ -12,9 +11,9 @@ import numpy.typing as npt
 
 from turning_force.core import lti
 from turning_force.core.compiled import Arr, activate, compiled, delayed, entry, pymod
-from turning_force.core.drive import CurrentBlock
-from turning_force.core.feeddrive import friction_current
-from turning_force.core.plant import PlantBlock, PlantSettings
+from turning_force.core.plant.drive import CurrentBlock
+from turning_force.core.plant.feeddrive import friction_current
+from turning_force.core.plant.settings import PlantBlock, PlantSettings
 
 __all__ = ['LathePlant', 'plant_step']
 
@@ -68,7 +67,7 @@ def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.nda
                v: np.ndarray, angle: np.ndarray, feed_rate: np.ndarray,
                truth: np.ndarray) -> float:
     """The lathe for one block at ``override_pct`` (the one source of the simulated plant:
-    :class:`turning_force.core.lathe.LathePlant` steps it too).
+    :class:`turning_force.core.plant.lathe.LathePlant` steps it too).
 
     override -> PMC dead time (a ring of ``P_DELAY`` samples) -> CNC servo (Park Eq. 2, first
     order, or Hwang & Chen Eq. 1, second order; zero-order-hold coefficients in direct form II

@@ -1,6 +1,6 @@
 """The force estimator, compiled: Clarke-Park, friction (Park Eq. 25), the current map (Park
 Eq. 26), the Kalman or low-pass filter, the friction re-zero and the checks on every block
-(:mod:`turning_force.core.estimation` states them and holds the settings).
+(:mod:`turning_force.core.estimation.settings` states them and holds the settings).
 """
 
 from __future__ import annotations
@@ -21,15 +21,15 @@ from turning_force.core.compiled import (
     pymax,
     pymin,
 )
-from turning_force.core.drive import CurrentBlock
-from turning_force.core.estimation import (
+from turning_force.core.estimation.settings import (
     IMPLAUSIBLE_RANGE_FACTOR,
     RESYNC_BLOCKS,
     EstimateStatus,
     EstimatorSettings,
     ForceEstimate,
 )
-from turning_force.core.feeddrive import friction_current
+from turning_force.core.plant.drive import CurrentBlock
+from turning_force.core.plant.feeddrive import friction_current
 
 __all__ = ['ForceEstimator', 'detail_text', 'estimator_update', 'rezeroed_text']
 

@@ -1,11 +1,10 @@
 """The override gate, compiled: what the PMC is written, block by block.
 
-:mod:`turning_force.core.pmc` states the rules and their order (the safety gate first, then the
-shop floor's behaviours of :mod:`turning_force.core.shopfloor`); here they are written once, as
-compiled functions (``gate_*``) on a parameter and a state array, which the compiled loops run
-(:mod:`turning_force.core.kernel.loops`) and :class:`OverrideGate` runs for the bridge, one block
-at a time, putting their codes into words.
-"""
+:mod:`turning_force.core.pmc.settings` states the rules and their order (the safety gate first,
+then the shop floor's behaviours of :mod:`turning_force.core.pmc.shopfloor`); here they are written
+once, as compiled functions (``gate_*``) on a parameter and a state array, which the compiled loops
+run (:mod:`turning_force.core.kernel.loops`) and :class:`OverrideGate` runs for the bridge, one
+block at a time, putting their codes into words. """
 
 from __future__ import annotations
 
@@ -15,9 +14,9 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core.compiled import Arr, activate, compiled, entry, pymax, pymin, quantise
-from turning_force.core.overrides import OverrideTable, get_table
-from turning_force.core.pmc import BridgeSettings, Decision, Reason
-from turning_force.core.shopfloor import NO_INPUTS, CutRecord, InputValues, Learned, TaughtTool
+from turning_force.core.pmc.overrides import OverrideTable, get_table
+from turning_force.core.pmc.settings import BridgeSettings, Decision, Reason
+from turning_force.core.pmc.shopfloor import NO_INPUTS, CutRecord, InputValues, Learned, TaughtTool
 
 __all__ = ['OverrideGate', 'cut_record']
 
@@ -529,7 +528,7 @@ def gate_close(gp: np.ndarray, gs: np.ndarray, cut: np.ndarray) -> None:
 
 @entry('void(float64[::1], float64[::1], float64, float64, float64[::1], float64[::1])')
 def gate_block(gp: Arr, gs: Arr, force: float, status: float, cut: Arr, started: Arr) -> None:
-    """:func:`gate_on_estimate` from Python (:class:`turning_force.core.gate.OverrideGate`);
+    """:func:`gate_on_estimate` from Python (:class:`turning_force.core.pmc.gate.OverrideGate`);
     started[0] 1 where a hold has just started."""
     started[0] = 1.0 if gate_on_estimate(gp, gs, force, int(status), cut) else 0.0
 

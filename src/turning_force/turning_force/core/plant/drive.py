@@ -186,8 +186,8 @@ class FeedDriveSettings(Settings):
     """The feed drive as a force sensor: friction (Eq. 25) and current-to-force (Eq. 26).
 
     The simulator holds the machine's true values; the estimator holds what calibration found
-    (:func:`turning_force.core.estimation.calibrate_friction`). The same fields serve both.
-    """
+    (:func:`turning_force.core.estimation.settings.calibrate_friction`). The same fields serve
+    both. """
 
     friction_min_feed_mm_min: float = setting(6.0, 'Slowest feed of the friction curve (Park '
                                               'Eq. 25)', 'mm/min', low=0.0, low_open=True)

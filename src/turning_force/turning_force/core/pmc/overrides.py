@@ -25,8 +25,9 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core.errors import ConfigError
+from turning_force.core.settings import setting
 
-__all__ = ['TABLES', 'OverrideTable', 'get_table']
+__all__ = ['TABLES', 'OverrideTable', 'get_table', 'override_table']
 
 
 @dataclass(frozen=True)
@@ -206,3 +207,10 @@ def get_table(name: str) -> OverrideTable:
         raise ConfigError(
             f'override_table = {name!r}: unknown; known: {", ".join(sorted(TABLES))}'
         ) from None
+
+
+def override_table() -> Any:
+    """The setting that names the machine's table (the plant, the controller and the bridge
+    each have it, under ``/**`` in a file)."""
+    return setting('fanuc_0t_4bit', "Override table of the machine's PMC; its range bounds the "
+                   'command', choices=tuple(TABLES))

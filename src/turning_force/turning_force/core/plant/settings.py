@@ -10,8 +10,8 @@ Signal chain, sampled at the DAQ rate and stepped one control block at a time::
 The linear process of Park (``g = 1``, ``k = K_s``) and the power law of Hwang & Chen
 (``g = 0.95``, ``k = k_f``) are one model. Linear blocks are discretised exactly (zero-order hold)
 once and run as direct-form-II-transposed filters, their state carried from block to block.
-The arithmetic is written once, compiled, in :mod:`turning_force.core.lathe`
-(:class:`~turning_force.core.lathe.LathePlant` and the compiled core loop both run it); this
+The arithmetic is written once, compiled, in :mod:`turning_force.core.plant.lathe`
+(:class:`~turning_force.core.plant.lathe.LathePlant` and the compiled core loop both run it); this
 module holds the plant's settings and what it gives.
 """
 
@@ -23,9 +23,10 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core import shared
-from turning_force.core.drive import CurrentBlock, FeedDriveSettings
+from turning_force.core.plant.drive import CurrentBlock, FeedDriveSettings
+from turning_force.core.pmc.overrides import override_table
+from turning_force.core.pmc.shopfloor import NO_INPUTS, InputValues
 from turning_force.core.settings import setting
-from turning_force.core.shopfloor import NO_INPUTS, InputValues
 
 __all__ = ['DepthProfile', 'Dynamometer', 'PlantBlock', 'PlantSettings']
 
@@ -41,7 +42,7 @@ class PlantSettings(FeedDriveSettings):
 
     seed: int = setting(1, 'Seed of the sensor and process noise', low=0)
     control_period_s: float = shared.control_period_s()
-    override_table: str = shared.override_table()
+    override_table: str = override_table()
     sample_rate_hz: float = setting(1000.0, 'DAQ sample rate of the phase currents', 'Hz',
                                     low=10.0, high=100000.0)
     spindle_speed_rpm: float = shared.spindle_speed_rpm()

@@ -1,5 +1,5 @@
 """The closed loop in one function, no ROS: plant -> control chain (estimator, controller, PMC
-gate, :class:`turning_force.core.loop.ControlChain`) -> plant.
+gate, :class:`turning_force.core.kernel.chain.ControlChain`) -> plant.
 
 Each control period the plant delivers one block of currents at the override the PMC applied in
 the period before; the chain runs on it and its gate (quantiser, watchdog, overload hold, the
@@ -22,11 +22,10 @@ import numpy.typing as npt
 from turning_force.core import kernel
 from turning_force.core.errors import NoCutError
 from turning_force.core.experiment import Experiment
-from turning_force.core.gate import CUT_FIELDS
-from turning_force.core.lathe import LathePlant
-from turning_force.core.loop import ControlChain
+from turning_force.core.kernel.chain import ControlChain
 from turning_force.core.metrics import compute_metrics
-from turning_force.core.overrides import get_table
+from turning_force.core.plant.lathe import LathePlant
+from turning_force.core.pmc.gate import CUT_FIELDS
 
 __all__ = ['CoreArrays', 'SimulationResult', 'simulate']
 
@@ -84,17 +83,22 @@ def run_loop(experiment: Experiment, kept: CoreArrays | None = None) -> Simulati
     """:func:`simulate`, keeping every block in ``kept`` as well where it is given."""
     wall_start = time.perf_counter()
     jit = kernel.load()
-    table = get_table(experiment.bridge.override_table)
-    chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge)
-    applied = table.quantise(experiment.controller.initial_override_pct)
-    plant = LathePlant(experiment.plant, initial_override_pct=applied)
     steps = round(experiment.run.duration_s / experiment.run.control_period_s)
-    rows = np.empty((steps, len(TRACE_NAMES)))
-    pp, ps, times, depths = plant.arrays
-    n, dt = plant.samples_per_block, 1.0 / experiment.plant.sample_rate_hz
+    dt = 1.0 / experiment.plant.sample_rate_hz
+    # The chain in its order: the estimator, the controller, the PMC gate (and the level the
+    # PMC starts at) ...
+    chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge)
     ep, es, cp, cs, clevels, gp, gs, glevels = chain.arrays(dt)
+    applied = chain.gate.table.quantise(experiment.controller.initial_override_pct)
+    # ... and the lathe it acts on: its arrays, the machine's inputs at each block's end, and
+    # when the depth changes (for the metrics).
+    plant = LathePlant(experiment.plant, initial_override_pct=applied)
+    pp, ps, times, depths = plant.arrays
+    n = plant.samples_per_block
     t_end = (np.arange(steps) * n).astype(np.float64) * dt + n * dt
     inputs = np.ascontiguousarray(experiment.plant.inputs_array(t_end))
+    depth_changes_s = experiment.plant.depth_profile.change_times_s()
+    rows = np.empty((steps, len(TRACE_NAMES)))
     cuts = np.zeros((steps // 2 + 1, CUT_FIELDS))
     ncuts = np.zeros(1)
     last = np.array([applied, 0.0, 1.0])
@@ -117,7 +121,7 @@ def run_loop(experiment: Experiment, kept: CoreArrays | None = None) -> Simulati
     try:
         metrics = compute_metrics(
             trace['t_s'], trace['force_n'], trace['reference_n'], trace['depth_mm'],
-            trace['applied_override_pct'], experiment.plant.depth_profile.change_times_s(),
+            trace['applied_override_pct'], depth_changes_s,
             experiment.metric_settings, reachable=trace['reference_reachable'] > 0.5,
         )
     except NoCutError:
