@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -107,3 +108,52 @@ def test_an_entry_point_takes_its_signature_and_compiles_nothing_else():
     with pytest.raises(TypeError):
         update.control_step(cp.astype(np.float32), cs, levels, 500.0, 0.0, out)
     assert len(update.control_step.signatures) == 1
+
+
+def test_the_compiled_code_calls_no_blas():
+    # compiled._target_without_blas skips numba's check for a BLAS (an import of scipy.linalg,
+    # 0.14 s of a short run's start-up) where only our laws are installed: that holds only as
+    # long as none of our compiled functions calls one (np.dot, @, np.linalg, np.vdot, ...).
+    import ast
+    import inspect
+
+    from turning_force.core import compiled
+
+    kernel.load()
+    blas = {'dot', 'vdot', 'inner', 'outer', 'matmul', 'linalg', 'kron', 'trace', 'cov'}
+    users, read = [], set()
+    for name, module in list(sys.modules.items()):
+        if not name.startswith('turning_force') or module is None:
+            continue
+        for value in list(vars(module).values()):
+            function = getattr(value, 'py_func', None)
+            if function is None or function.__module__ != name:
+                continue
+            read.add(f'{name}.{function.__name__}')
+            tree = ast.parse(inspect.getsource(function).lstrip())
+            for node in ast.walk(tree):
+                if (isinstance(node, ast.BinOp) and isinstance(node.op, ast.MatMult)) or (
+                        isinstance(node, ast.Attribute) and node.attr in blas):
+                    users.append(f'{name}.{function.__name__}')
+    assert compiled.active() and not users
+    # Every stage's functions were read: the plant's, the estimator's, each law's, the gate's.
+    assert {'turning_force.core.plant.lathe.plant_step', 'turning_force.core.pmc.gate._judge',
+            'turning_force.core.estimation.estimator.estimator_update',
+            'turning_force.core.control.laws.smc.step', 'turning_force.core.control.rls.update',
+            'turning_force.core.kernel.loops.chain_step'} <= read
+
+
+def test_a_warm_start_does_not_import_scipy_linalg(fig8):
+    # With a warm cache and only our laws, numba's BLAS check (an import of scipy.linalg) is
+    # skipped; the run is the same run.
+    import subprocess
+
+    kernel.load()
+    code = ('import sys; from turning_force.core.experiment import load_experiment; '
+            'from turning_force.core.kernel.simulate import simulate; '
+            f'r = simulate(load_experiment({str(fig8)!r})); '
+            "print('scipy.linalg' in sys.modules, r.metrics['steady_mean_abs_error_n'])")
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=300, check=True).stdout.split()
+    expected = simulate(load_experiment(fig8)).metrics['steady_mean_abs_error_n']
+    assert out == ['False', repr(expected)]
