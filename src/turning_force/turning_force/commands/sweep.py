@@ -54,6 +54,7 @@ from turning_force.core.experiment import (
     SETTINGS_OF,
     SHARED,
     Experiment,
+    check_node,
     load_experiment,
     parse_set,
 )
@@ -170,7 +171,7 @@ def parse_axis(text: str) -> Axis:
     if not (sep and dot and node and param and raw.strip()):
         raise ConfigError(f'{where}: {GRID_FORMS}')
     name = f'{node}.{param}'
-    _check_node(node, where)
+    check_node(node, f'{where}: unknown node {node!r}')
     stripped = raw.strip()
     if ':' in stripped and stripped[0] not in '[{"\'':
         values, log = _range(stripped, name, where)
@@ -183,13 +184,6 @@ def parse_axis(text: str) -> Axis:
     if not isinstance(values, list) or not values or any(v is None for v in values):
         raise ConfigError(f'{where}: an empty value; {GRID_FORMS}')
     return _axis(name, values, False, text)
-
-
-def _check_node(node: str, where: str) -> None:
-    # Experiment.with_sets' words, under --grid.
-    if node != SHARED and node not in SETTINGS_OF and node not in OTHER_SECTIONS:
-        known = ', '.join([SHARED, *SETTINGS_OF, *OTHER_SECTIONS])
-        raise ConfigError(f'{where}: unknown node {node!r}; known: {known}')
 
 
 def _declared(node: str, param: str) -> tuple[type, bool] | None:
@@ -247,7 +241,7 @@ def _axis(name: str, values: list[Any], log: bool, text: str) -> Axis:
     if '.' not in name:
         raise ConfigError(f'{where}: {GRID_FORMS}')
     node, param = name.rsplit('.', 1)
-    _check_node(node, where)
+    check_node(node, f'{where}: unknown node {node!r}')
     if not values:
         raise ConfigError(f'{where}: no values')
     declared = _declared(node, param)
@@ -819,29 +813,17 @@ class _ReplayJob:
 def _replay_bag(job: _ReplayJob, bag: str, shown: str) -> SessionReplay:
     """One session through :func:`turning_force.session.replay.replay`; an error is kept as
     the session's, not raised (the other sessions go on). ``shown``: the path as given."""
-    from turning_force.core.overlay import with_parameters_file
     from turning_force.session.reader import read_session
-    from turning_force.session.replay import replay
+    from turning_force.session.replay import lay_settings, replay
 
     _load_kernel()
     try:
         session = read_session(bag, job.partial)
-        if job.experiment is not None:
-            session.experiment = job.experiment
-        if job.params and session.experiment is None:
-            raise TurningForceError(f'{session.path}: no recorded parameters to lay --params '
-                                    'over; give --experiment')
-        for file in job.params:
-            assert session.experiment is not None
-            session.experiment = with_parameters_file(session.experiment, file)
+        lay_settings(session, job.experiment, job.params)
         result = replay(session, job.sets)
     except Exception as exc:   # this session's error, reported with it
         return SessionReplay(shown, error=_error_text(exc).replace(bag, shown))
-    comparison = {'max_force_difference_n': result.max_force_difference_n,
-                  'max_request_difference_pct': result.max_request_difference_pct,
-                  'differing_overrides': result.differing_overrides,
-                  'differing_reasons': result.differing_reasons,
-                  'blocks': len(session.blocks)}
+    comparison = result.comparison(len(session.blocks))
     return SessionReplay(shown, len(session.blocks), dict(result.rerun),
                          dict(result.recorded), comparison, session.warning.replace(bag, shown))
 

@@ -313,15 +313,6 @@ class CutRecord:
     def duration_s(self) -> float:
         return self.end_s - self.start_s
 
-    def to_dict(self) -> dict[str, Any]:
-        return {'index': self.index, 'tool': self.tool, 'start_s': self.start_s,
-                'end_s': self.end_s, 'duration_s': self.duration_s,
-                'programmed_feed_s': self.programmed_feed_s, 'max_force_n': self.max_force_n,
-                'mean_force_n': self.mean_force_n, 'min_override_pct': self.min_override_pct,
-                'overload_events': self.overload_events, 'breakage': self.breakage,
-                'reachable_fraction': self.reachable_fraction, 'learned': self.learned,
-                'complete': self.complete}
-
 
 # --- the behaviours ---------------------------------------------------------------------------
 

@@ -61,14 +61,6 @@ class Write:
     t_s: float = field(default=0.0, compare=False)
 
 
-@dataclass
-class _Faults:
-    latency_s: float = 0.0
-    refuse_writes: bool = False
-    stuck_coils: dict[int, bool] = field(default_factory=dict)
-    writes: list[Write] = field(default_factory=list)
-
-
 class SimulatedPmcServer:
     """pymodbus's Modbus/TCP server in a thread of its own, with an event loop of its own.
 
@@ -85,44 +77,22 @@ class SimulatedPmcServer:
             m = machine.modbus
             if m.readback_first != m.first_coil:
                 self._mirror = (m.first_coil, len(m.override_coils), m.readback_first)
-        self._faults = _Faults()
+        # Faults, for tests: answer late, refuse writes, coils that keep a value whatever is
+        # written (a welded relay, a blown output).
+        self.latency_s = 0.0
+        self.refuse_writes = False
+        self.stuck_coils: dict[int, bool] = {}
+        self._writes: list[Write] = []
         self._loop: asyncio.AbstractEventLoop | None = None
         self._server: Any = None   # the ModbusTcpServer, while it runs
         self._thread: threading.Thread | None = None
         self._device: SimDevice | None = None
         quiet_pymodbus()
 
-    # --- fault injection, for tests -----------------------------------------------------------
-
-    @property
-    def latency_s(self) -> float:
-        return self._faults.latency_s
-
-    @latency_s.setter
-    def latency_s(self, value: float) -> None:
-        self._faults.latency_s = value
-
-    @property
-    def refuse_writes(self) -> bool:
-        return self._faults.refuse_writes
-
-    @refuse_writes.setter
-    def refuse_writes(self, value: bool) -> None:
-        self._faults.refuse_writes = value
-
-    @property
-    def stuck_coils(self) -> dict[int, bool]:
-        """Coils that keep a value whatever is written (a welded relay, a blown output)."""
-        return self._faults.stuck_coils
-
-    @stuck_coils.setter
-    def stuck_coils(self, value: dict[int, bool]) -> None:
-        self._faults.stuck_coils = dict(value)
-
     @property
     def writes(self) -> list[Write]:
         """Every coil write received, in order (refused ones included)."""
-        return list(self._faults.writes)
+        return list(self._writes)
 
     # --- running ------------------------------------------------------------------------------
 
@@ -191,16 +161,15 @@ class SimulatedPmcServer:
     async def _action(self, function_code: int, start_address: int, address: int,
                       count: int, registers: list[int],
                       values: list[int] | list[bool] | None) -> ExcCodes | None:
-        faults = self._faults
-        if faults.latency_s > 0:
-            await asyncio.sleep(faults.latency_s)
+        if self.latency_s > 0:
+            await asyncio.sleep(self.latency_s)
         if values is not None and function_code in WRITE_CODES:
-            faults.writes.append(Write(address, tuple(bool(v) for v in values),
-                                       time.perf_counter()))
-            if faults.refuse_writes:
+            self._writes.append(Write(address, tuple(bool(v) for v in values),
+                                      time.perf_counter()))
+            if self.refuse_writes:
                 return ExcCodes.DEVICE_FAILURE
             for k in range(len(values)):   # the action may change what is stored
-                stuck = faults.stuck_coils.get(address + k)
+                stuck = self.stuck_coils.get(address + k)
                 if stuck is not None:
                     values[k] = stuck
         if function_code == 1 and self._mirror is not None:

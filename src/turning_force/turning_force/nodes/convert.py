@@ -9,6 +9,7 @@ overwrite it.
 from __future__ import annotations
 
 import array
+import dataclasses
 import math
 
 import numpy as np
@@ -150,12 +151,6 @@ def inputs_from_msg(msg: MachineInputs) -> InputValues:
 
 
 def cut_to_msg(record: CutRecord) -> CutRecordMsg:
-    msg = CutRecordMsg(
-        index=record.index, tool=record.tool, start_s=record.start_s, end_s=record.end_s,
-        duration_s=record.duration_s, programmed_feed_s=record.programmed_feed_s,
-        max_force_n=record.max_force_n, mean_force_n=record.mean_force_n,
-        min_override_pct=record.min_override_pct, overload_events=record.overload_events,
-        breakage=record.breakage, reachable_fraction=record.reachable_fraction,
-        learned=record.learned, complete=record.complete)
+    msg = CutRecordMsg(**dataclasses.asdict(record), duration_s=record.duration_s)
     msg.header.stamp = seconds_to_stamp(record.end_s)
     return msg

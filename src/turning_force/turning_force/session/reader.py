@@ -20,6 +20,7 @@ a warning too.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections import Counter
 from collections.abc import Sequence
@@ -675,21 +676,14 @@ def _answers(table: Table | None, stamps: IntArray) -> IntArray:
 
 
 def _cuts(table: Table | None) -> list[CutRecord]:
-    if table is None:
+    names = [f.name for f in dataclasses.fields(CutRecord)]
+    if table is None or not all(n in table.columns for n in names):
         return []
-    c = table.columns
-    names = ('index', 'start_s', 'end_s', 'programmed_feed_s', 'max_force_n', 'mean_force_n',
-             'min_override_pct', 'overload_events', 'breakage', 'reachable_fraction',
-             'learned', 'complete')
-    if not all(n in c for n in (*names, 'tool')):
-        return []
-    return [CutRecord(int(c['index'][k]), table.text('tool', k), float(c['start_s'][k]),
-                      float(c['end_s'][k]), float(c['programmed_feed_s'][k]),
-                      float(c['max_force_n'][k]), float(c['mean_force_n'][k]),
-                      float(c['min_override_pct'][k]), int(c['overload_events'][k]),
-                      bool(c['breakage'][k]), float(c['reachable_fraction'][k]),
-                      bool(c['learned'][k]), bool(c['complete'][k]))
-            for k in range(table.count)]
+    def row(k: int) -> dict[str, Any]:
+        return {n: table.text(n, k) if n == 'tool' else table.columns[n][k].item()
+                for n in names}
+
+    return [CutRecord(**row(k)) for k in range(table.count)]
 
 
 def read_session(path: str | Path, partial: bool = False) -> Session:

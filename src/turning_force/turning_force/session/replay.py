@@ -16,18 +16,20 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
 from turning_force.core.batch import CurrentArrays, InputArrays, replay_chain
 from turning_force.core.drive import CurrentBlock
-from turning_force.core.errors import NoCutError
+from turning_force.core.errors import NoCutError, TurningForceError
 from turning_force.core.experiment import Experiment, parse_set
+from turning_force.core.overlay import with_parameters_file
 from turning_force.session.bag import BagError
 from turning_force.session.reader import Session, estimate_metrics, recorded_reachable
 
-__all__ = ['ReplayResult', 'replay']
+__all__ = ['ReplayResult', 'lay_settings', 'replay']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -45,6 +47,27 @@ class ReplayResult:
     max_request_difference_pct: float
     differing_overrides: int
     differing_reasons: int
+
+    def comparison(self, blocks: int) -> dict[str, float]:
+        """How far the re-run is from the recording (``--json``'s ``comparison``)."""
+        return {'max_force_difference_n': self.max_force_difference_n,
+                'max_request_difference_pct': self.max_request_difference_pct,
+                'differing_overrides': self.differing_overrides,
+                'differing_reasons': self.differing_reasons, 'blocks': blocks}
+
+
+def lay_settings(session: Session, experiment: Experiment | None,
+                 params: Sequence[str | Path]) -> None:
+    """The settings to replay with: ``experiment`` instead of the recorded ones (if given),
+    then the ``--params`` files laid over them in order."""
+    if experiment is not None:
+        session.experiment = experiment
+    if params and session.experiment is None:
+        raise TurningForceError(f'{session.path}: no recorded parameters to lay --params '
+                                'over; give --experiment')
+    for file in params:
+        assert session.experiment is not None
+        session.experiment = with_parameters_file(session.experiment, file)
 
 
 def replay(session: Session, sets: Sequence[str] = (),
