@@ -1,34 +1,17 @@
 """Parameter sweeps, and the replay of many sessions, on all local cores or a Dask cluster.
 
-:func:`sweep` runs every combination of a grid of settings, closed loop on the simulator
-(:func:`turning_force.core.simulate.simulate`) or open loop on a recorded session
-(:func:`turning_force.session.replay.replay`), and scores each point with the DESIGN.md
-metrics. A grid has one axis per setting:
+:func:`sweep` runs every combination of a grid of settings (:func:`parse_grid`: one axis per
+setting, ``START:STOP:N``, ``START:STOP:Nlog`` or ``v1,v2,...``), closed loop on the simulator
+or open loop on a recorded session, and scores each point with the DESIGN.md metrics. Every
+value is checked against its setting before anything runs; what fails at one point while it
+runs is that point's ``error``, and the sweep goes on. :func:`replay_sessions` replays many
+sessions with one set of changes. docs/sessions.md shows both at work.
 
-- ``node.param=START:STOP:N``: N values evenly spaced, both ends included;
-- ``node.param=START:STOP:Nlog``: N values evenly spaced in the logarithm (START, STOP > 0);
-- ``node.param=v1,v2,...``: a list, each value read as YAML (``smc,adaptive``, ``0.1,0.2``,
-  ``[1, 2],[2, 3]`` for a list-valued setting).
-
-Every value is checked against the setting's spec (and the experiment's rules) before anything
-runs, so a sweep never starts on a grid it would refuse half-way; what fails at a point while
-it runs (a combination two axes make invalid, a run that raises) is that point's ``error``,
-as text, and the sweep goes on.
-
-Speed: the points go to worker processes ('forkserver': no fork of a process with threads) in
-chunks; each worker loads the compiled kernel once, builds each point's settings from the
-experiment's sections (:meth:`Experiment.with_sets`) and runs it compiled. Results come back as
-small dicts. ``test/bench/bench_sweep.py``
-measures it.
-
-:func:`replay_sessions` replays many sessions with one set of changes (a shop's recordings
-with a new setting), one task per session.
-
-With ``dask=SCHEDULER_ADDRESS`` (or a ``distributed.Client``) both run on a Dask cluster
-(``pip install 'turning_force[dask]'``; dask is imported only then): chunks of points, or
-sessions, go out with ``Client.map``. The workers need turning_force installed (the same
-version), and a replayed session, a ``--params`` file, must be readable at the same path on
-them (a shared file system). Results are the same as on the local cores, bit for bit.
+The points go to worker processes ('forkserver': no fork of a process with threads) in chunks;
+each worker loads the compiled kernel once. With ``dask=SCHEDULER_ADDRESS`` (or a
+``distributed.Client``; dask is imported only then) chunks go out with ``Client.map``: the
+workers need the same turning_force, and the files at the same paths. Results are the same as
+on the local cores, bit for bit. ``test/bench/bench_sweep.py`` measures it.
 """
 
 from __future__ import annotations
@@ -64,19 +47,8 @@ from turning_force.core.yamlfile import load_yaml, yaml_error_text
 if TYPE_CHECKING:
     from turning_force.session.reader import Session
 
-__all__ = [
-    'BETTER',
-    'DEFAULT_METRIC',
-    'REPLAY_COLUMNS',
-    'Axis',
-    'SessionReplay',
-    'SweepResult',
-    'parse_axis',
-    'parse_grid',
-    'replay_sessions',
-    'replay_totals',
-    'sweep',
-]
+__all__ = ['BETTER', 'DEFAULT_METRIC', 'REPLAY_COLUMNS', 'Axis', 'SessionReplay', 'SweepResult',
+           'parse_axis', 'parse_grid', 'replay_sessions', 'replay_totals', 'sweep']
 
 # Which way each metric is better (core/metrics.py): errors, times, ripple and override changes
 # lower; the share of the cut that could reach the reference higher.

@@ -16,15 +16,8 @@ import numpy.typing as npt
 from turning_force.core.errors import ConfigError
 from turning_force.core.settings import Settings, setting
 
-__all__ = [
-    'CurrentBlock',
-    'CurrentForceMap',
-    'FeedDriveSettings',
-    'FrictionModel',
-    'clarke_park',
-    'inverse_park_clarke',
-    'rotor_angle_rad',
-]
+__all__ = ['CurrentBlock', 'CurrentForceMap', 'FeedDriveSettings', 'FrictionModel', 'clarke_park',
+           'inverse_park_clarke', 'rotor_angle_rad']
 
 FloatArray = npt.NDArray[np.float64]
 _SQRT3 = math.sqrt(3.0)

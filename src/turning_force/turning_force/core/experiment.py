@@ -36,17 +36,8 @@ from turning_force.core.pmc import BridgeSettings
 from turning_force.core.settings import Settings, setting
 from turning_force.core.yamlfile import load_yaml, read_text, yaml_error_text
 
-__all__ = [
-    'Experiment',
-    'RecorderSettings',
-    'RunSettings',
-    'build_experiment',
-    'check_node',
-    'load_experiment',
-    'parameter_sections',
-    'parse_experiment',
-    'parse_set',
-]
+__all__ = ['Experiment', 'RecorderSettings', 'RunSettings', 'build_experiment', 'check_node',
+           'load_experiment', 'parameter_sections', 'parse_experiment', 'parse_set']
 
 SHARED = '/**'
 _T = TypeVar('_T')

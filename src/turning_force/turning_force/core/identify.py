@@ -50,19 +50,9 @@ from turning_force.core.drive import CurrentForceMap, FrictionModel
 from turning_force.core.errors import TurningForceError
 from turning_force.core.settings import Settings, setting
 
-__all__ = [
-    'Estimate',
-    'Fit',
-    'Identification',
-    'IdentifyError',
-    'IdentifySettings',
-    'MapCalibration',
-    'Recording',
-    'calibrate_map',
-    'identify',
-    'servo_matrices',
-    'servo_response',
-]
+__all__ = ['Estimate', 'Fit', 'Identification', 'IdentifyError', 'IdentifySettings',
+           'MapCalibration', 'Recording', 'calibrate_map', 'identify', 'servo_matrices',
+           'servo_response']
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]

@@ -39,11 +39,7 @@ from dataclasses import dataclass
 from turning_force.core import shared
 from turning_force.core.overrides import get_table
 from turning_force.core.settings import setting
-from turning_force.core.shopfloor import (
-    NO_INPUTS,
-    InputValues,
-    ShopFloorSettings,
-)
+from turning_force.core.shopfloor import NO_INPUTS, InputValues, ShopFloorSettings
 
 __all__ = ['BridgeSettings', 'Decision', 'Reason']
 

@@ -23,23 +23,10 @@ from turning_force.core.drive import CurrentBlock
 from turning_force.core.estimation import EstimateStatus, ForceEstimate
 from turning_force.core.shopfloor import CutRecord, InputValues
 
-__all__ = [
-    'block_to_servo_currents',
-    'cut_to_msg',
-    'estimate_from_msg',
-    'estimate_to_msg',
-    'from_tristate',
-    'inputs_from_msg',
-    'inputs_to_msg',
-    'last_sample_ns',
-    'ns_to_stamp',
-    'seconds_to_stamp',
-    'servo_currents_to_block',
-    'set_stamp',
-    'stamp_to_ns',
-    'stamp_to_seconds',
-    'tristate',
-]
+__all__ = ['block_to_servo_currents', 'cut_to_msg', 'estimate_from_msg', 'estimate_to_msg',
+           'from_tristate', 'inputs_from_msg', 'inputs_to_msg', 'last_sample_ns', 'ns_to_stamp',
+           'seconds_to_stamp', 'servo_currents_to_block', 'set_stamp', 'stamp_to_ns',
+           'stamp_to_seconds', 'tristate']
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -2,30 +2,21 @@
 
 Subscribes ``pmc/feed_override`` (turning_force_msgs/FeedOverride): the PMC bits are decoded with
 the override table, as the CNC would read them. Publishes, once per control period,
-``servo/currents`` (a block of DAQ samples), ``servo/joint_state`` (sensor_msgs/JointState of
-the feed axis ``z``: position [m], velocity [m/s], effort = true cutting force [N]),
-``sim/cutting_state`` (ground truth) and ``machine/inputs`` (turning_force_msgs/MachineInputs:
-the simulated machine's program enable, threading and operator dial, from the parameters,
-published before the block's currents so that the bridge has them when it answers); with
-``dynamometer`` also ``force/measured`` (geometry_msgs/WrenchStamped, ``wrench.force.z`` [N]: a
-table dynamometer's reading of each block, for ``turning-force calibrate --map``); with
-``publish_clock`` it owns ``/clock`` and advances it one control period per step (lock-step
-simulation). Parameters:
-:class:`turning_force.core.plant.PlantSettings`, and two it shares with ``pmc_bridge``:
-``machine_file`` and ``backend``. With ``backend: modbus_tcp`` the override is not taken from
-the topic but read, each step, from the coils of the Modbus/TCP server that stands in for the
-PMC's input image, and decoded with the machine file, as the PMC would: the loop closes
-through the real protocol.
+``machine/inputs`` (the simulated program enable, threading and dial, before the block's
+currents so that the bridge has them when it answers), ``servo/currents`` (a block of DAQ
+samples), ``servo/joint_state`` (feed axis ``z``: position [m], velocity [m/s], effort = true
+cutting force [N]) and ``sim/cutting_state`` (ground truth); with ``dynamometer`` also
+``force/measured`` (geometry_msgs/WrenchStamped, ``wrench.force.z`` [N], for ``turning-force
+calibrate --map``); with ``publish_clock`` it owns ``/clock`` and advances it one control period
+per step (lock-step). Parameters: :class:`turning_force.core.plant.PlantSettings`, and
+``machine_file`` and ``backend``, shared with ``pmc_bridge``: with ``backend: modbus_tcp`` the
+override is read each step from the coils of the simulated PMC's Modbus/TCP server, as the PMC
+would: the loop closes through the real protocol.
 
-On the wall clock (not lock-step) it measures, per block, the time from the block's currents
-going out to the ``pmc/feed_override`` answering it (stamped as the block) coming back: both
-ends are seen here, on one monotonic clock, so the figure is the whole loop as the PMC would
-see it (DDS both ways, estimator, controller, bridge, and whatever shares their executors).
-``/diagnostics`` carries it over the last ``latency_window_s``: ``answer_latency_p50_ms``,
-``answer_latency_p99_ms``, ``answer_latency_max_ms``, ``answered_blocks``, ``missed_periods``
-(blocks whose answer had not come when the next block went out) and ``missed_periods_total``
-since the first answer (:class:`turning_force.nodes.diagnostics.AnswerLatency`); the status is
-WARN while the window holds a missed period.
+On the wall clock it measures, per block, the time from the block's currents going out to the
+override answering it coming back (the whole loop as the PMC would see it), and reports it on
+``/diagnostics`` over ``latency_window_s`` (:class:`turning_force.nodes.diagnostics.AnswerLatency`:
+``LATENCY_KEYS``); the status is WARN while the window holds a missed period.
 """
 
 from __future__ import annotations

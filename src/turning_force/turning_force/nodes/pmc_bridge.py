@@ -1,41 +1,21 @@
 """``pmc_bridge``: what reaches the CNC's PMC, safe first. A lifecycle (managed) node.
 
-Subscribes ``control/feed_command`` (turning_force_msgs/FeedCommand) and ``force/estimate``
-(turning_force_msgs/ForceEstimate); publishes ``pmc/feed_override``
-(turning_force_msgs/FeedOverride) and writes the PMC backend. The decisions (disarmed,
-watchdog, invalid command, overload hold) are :class:`turning_force.core.gate.OverrideGate`'s;
-parameters: :class:`turning_force.core.pmc.BridgeSettings`, and ``autostart``.
+Subscribes ``control/feed_command`` (turning_force_msgs/FeedCommand), ``force/estimate``
+(turning_force_msgs/ForceEstimate) and ``machine/inputs``; publishes ``pmc/feed_override``
+(turning_force_msgs/FeedOverride), ``pmc/cuts`` (turning_force_msgs/CutRecord) and, with
+``teach_file``, ``force/reference`` (std_msgs/Float64, transient-local); writes the PMC backend.
+Parameters: :class:`turning_force.core.pmc.BridgeSettings`, and ``autostart`` (configure and
+activate at start). The decisions (disarmed, watchdog, invalid command, overload hold, the
+shop-floor behaviours) are :class:`turning_force.core.gate.OverrideGate`'s.
 
-Lifecycle, the ROS 2 convention for hardware drivers (``~/change_state``, ``~/get_state``, as
-``ros2 lifecycle set`` drives them):
-
-- configure: load ``machine_file`` (its table must be ``override_table``), open the backend
-  (``modbus_tcp``: connect to the module) and write the programmed feed;
-- activate: the gate runs and may arm (``armed`` parameter or ``~/arm``, std_srvs/Trigger);
-- deactivate: hand the feed back (the operator's dial where the machine file wires one, else
-  100 %) and hold it, whatever the controller asks;
-- cleanup, shutdown: hand the feed back and release the module.
-
-``autostart`` (default true) configures and activates at start, as the bridge always did;
-``turning-force run`` and ``turning_force_machine`` drive the transitions themselves.
-
-With ``backend: modbus_tcp`` every period's override goes to the module in one request and is
-read back (:class:`turning_force.io.modbus_pmc.ModbusPmc`); a refused request, a late answer, a
-wrong read-back or a lost connection is an I/O fault: the bridge disarms (it re-arms only when
-told), says why in ``FeedOverride`` (``REASON_IO_FAULT``) and ``/diagnostics``, and reconnects
-with back-off. The machine's inputs (program enable, threading, operator dial) are read each
-period into :attr:`PmcBridgeNode.inputs`; :meth:`PmcBridgeNode.set_output` sets its outputs.
-
-The shop-floor behaviours (:mod:`turning_force.core.shopfloor`: program enable, threading,
-operator dial, rise limit, feed floor, air cut, overload reactions, tool breakage, teach-in, cut
-log) are the gate's. Their inputs come from the module where the machine file wires them, else
-from ``machine/inputs`` (turning_force_msgs/MachineInputs: ``lathe_sim`` in simulation); every
-``FeedOverride`` records the inputs its decision saw, so that replay decides alike. The gate's
-alarm and stop/retract request go to the module's ``alarm`` and ``stop_request`` outputs where
-wired. Each finished cut goes out on ``pmc/cuts`` (turning_force_msgs/CutRecord), the one still
-open when the bridge is deactivated marked incomplete. With ``teach_file``, configuring
-publishes the tool's taught reference on ``force/reference`` (std_msgs/Float64,
-transient-local); a learning cut writes the file and publishes the reference it sets.
+Lifecycle (docs/machine-pc.md): configure loads ``machine_file`` and opens the backend;
+activate lets the gate run and arm (``armed`` or ``~/arm``); deactivate, cleanup and shutdown
+hand the feed back (the operator's dial where wired, else 100 %). With ``backend: modbus_tcp``
+each override goes to the module in one request and is read back
+(:class:`turning_force.io.modbus_pmc.ModbusPmc`); an I/O fault disarms the bridge, says why
+(``REASON_IO_FAULT``, ``/diagnostics``) and reconnects with back-off. The machine's inputs come
+from the module where the machine file wires them, else from ``machine/inputs``; every
+``FeedOverride`` records the inputs its decision saw, so that replay decides alike.
 """
 
 from __future__ import annotations

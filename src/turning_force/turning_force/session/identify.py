@@ -35,14 +35,8 @@ from turning_force.core.identify import (
 from turning_force.session.bag import BagError, typestore
 from turning_force.session.reader import Session, read_session
 
-__all__ = [
-    'MEASURED_FORCE_TOPIC',
-    'calibrate_map_sessions',
-    'cut_depth_mm',
-    'format_parameters',
-    'identify_sessions',
-    'recording_from_session',
-]
+__all__ = ['MEASURED_FORCE_TOPIC', 'calibrate_map_sessions', 'cut_depth_mm', 'format_parameters',
+           'identify_sessions', 'recording_from_session']
 
 FloatArray = npt.NDArray[np.float64]
 
