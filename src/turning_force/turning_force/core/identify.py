@@ -57,7 +57,6 @@ __all__ = ['Estimate', 'Fit', 'Identification', 'IdentifyError', 'IdentifySettin
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
-SERVO_MODELS = ('first_order', 'second_order')
 SERVO_DECIMATION = 5
 
 

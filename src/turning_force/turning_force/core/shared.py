@@ -14,8 +14,13 @@ from typing import Any
 from turning_force.core.overrides import TABLES
 from turning_force.core.settings import setting
 
-__all__ = ['control_period_s', 'max_feed_force_n', 'override_table', 'programmed_feed_mm_rev',
-           'spindle_speed_rpm']
+__all__ = [
+    'control_period_s',
+    'max_feed_force_n',
+    'override_table',
+    'programmed_feed_mm_rev',
+    'spindle_speed_rpm',
+]
 
 
 def control_period_s() -> Any:

@@ -173,8 +173,7 @@ class PmcBridgeNode(LifecycleNode):
             self._configure()
         except TurningForceError as exc:
             self.configure_error = str(exc)
-            self.get_logger().error(self.configure_error)
-            self.diagnostics.error(self.configure_error)
+            self.diagnostics.error(self.configure_error, log=True)
             self._release()
             return TransitionCallbackReturn.FAILURE
         self.configure_error = ''
@@ -259,8 +258,7 @@ class PmcBridgeNode(LifecycleNode):
         if reference is None:
             text = (f'{settings.teach_file}: tool {settings.tool} not taught: the controller '
                     'keeps its reference_force_n')
-            self.get_logger().warning(text)
-            self.diagnostics.warn(text)
+            self.diagnostics.warn(text, log=True)
             return
         if not reference < settings.overload_force_n:
             raise ConfigError(f'{settings.teach_file}: tools.{settings.tool}.reference_force_n '
@@ -318,15 +316,13 @@ class PmcBridgeNode(LifecycleNode):
         settings = self.parameters.current
         if learned.refused:
             text = f'teach-in for {learned.tool}: not learned: {learned.refused}'
-            self.get_logger().warning(text)
-            self.diagnostics.warn(text)
+            self.diagnostics.warn(text, log=True)
             return
         taught = learned.taught
         try:
             save_teach_file(settings.teach_file, learned.tool, taught)
         except ConfigError as exc:   # the reference is still set for this session
-            self.get_logger().error(str(exc))
-            self.diagnostics.error(str(exc))
+            self.diagnostics.error(str(exc), log=True)
         # Published before the override that answers this block: the controller has it for the
         # next block, as the core loop's chain retunes its controller after this one.
         self._reference_publisher.publish(Float64(data=taught.reference_force_n))
@@ -472,8 +468,7 @@ class PmcBridgeNode(LifecycleNode):
         self.diagnostics.published('pmc/feed_override')
         if written.reason != self._last_reason:
             if written.reason not in QUIET_REASONS:
-                self.get_logger().warning(f'{written.reason.name}: {written.detail}')
-                self.diagnostics.warn(f'{written.reason.name}: {written.detail}')
+                self.diagnostics.warn(f'{written.reason.name}: {written.detail}', log=True)
             self._last_reason = written.reason
         self.diagnostics.set_value('reason', written.reason.name)
         self.diagnostics.set_value('applied_pct', written.applied_pct)
@@ -509,8 +504,7 @@ class PmcBridgeNode(LifecycleNode):
 
     def _fault(self, decision: Decision, fault: str) -> Decision:
         if not self.io_fault:
-            self.get_logger().error(f'IO_FAULT: {fault}')
-            self.diagnostics.error(f'IO_FAULT: {fault}')
+            self.diagnostics.error(f'IO_FAULT: {fault}', log=True)
             self.diagnostics.set_value('io', f'fault: {fault}')
             if self.parameters.current.armed:
                 self._set_parameter('armed', False)   # re-armed only when told

@@ -164,8 +164,7 @@ class ServoDaqNode(Node):
             try:
                 u, v, angle = daq.read()
             except DaqError as exc:
-                self.get_logger().error(str(exc))
-                self.diagnostics.error(str(exc))
+                self.diagnostics.error(str(exc), log=True)
                 return
             t0_ns = self._t0_ns + round(self._samples * 1e9 / s.sample_rate_hz)
             self._samples += len(u)

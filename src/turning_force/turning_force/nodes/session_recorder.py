@@ -182,8 +182,7 @@ class SessionRecorderNode(Node):
         machine PC) goes on regulating, without a recording."""
         self._closed = True
         self.failure = exc
-        self.get_logger().error(str(exc))
-        self.diagnostics.error(str(exc))
+        self.diagnostics.error(str(exc), log=True)
         self.create_timer(1.0, lambda: self.diagnostics.error(str(exc)))
 
     def add_custom_data(self, key: str, value: str) -> None:

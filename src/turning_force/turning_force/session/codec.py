@@ -743,9 +743,3 @@ def _end(entries: Sequence[Entry], leaves: Sequence[Field]) -> int:
         else:
             end = max(end, offset + count * SIZES[leaves[index].base])
     return end
-
-
-def iter_rows(table: Table, paths: Iterable[str]) -> Iterable[tuple[Any, ...]]:
-    """Rows of some scalar columns, as Python values (for the few messages that are few)."""
-    columns = [table.columns[p].tolist() for p in paths]
-    return zip(*columns, strict=True)
