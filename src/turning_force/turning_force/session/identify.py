@@ -12,7 +12,6 @@ and the estimator load (``turning-force run EXP --params FILE``, or a second
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -33,7 +32,7 @@ from turning_force.core.identify import (
     identify,
 )
 from turning_force.session.bag import BagError, typestore
-from turning_force.session.reader import Session, read_session
+from turning_force.session.reader import Session, applied_overrides, read_session
 
 __all__ = ['MEASURED_FORCE_TOPIC', 'calibrate_map_sessions', 'cut_depth_mm', 'format_parameters',
            'identify_sessions', 'recording_from_session']
@@ -108,11 +107,7 @@ def recording_from_session(session: Session, axis: str = 'z') -> Recording:
         periods = {b.sample_period_s for b in session.blocks}
         raise BagError(f'{session.path}: blocks of {sorted(lengths)} samples at '
                        f'{sorted(periods)} s: identification needs one block size and rate')
-    answered = session.signals['answered_override_pct']
-    applied = np.concatenate([[PROGRAMMED_FEED_PCT], answered[:-1]])
-    for k in range(1, applied.size):   # a block nobody answered: the PMC held its value
-        if not math.isfinite(applied[k]):
-            applied[k] = applied[k - 1]
+    applied = applied_overrides(session.signals['answered_override_pct'], PROGRAMMED_FEED_PCT)
     status = session.signals['estimate_status']
     currents = clarke_park(c.phase_u_a, c.phase_v_a, c.rotor_angle_rad)[1]
     return Recording(

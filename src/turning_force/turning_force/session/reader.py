@@ -25,7 +25,7 @@ import json
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from functools import cache
+from functools import cache, cached_property
 from pathlib import Path
 from typing import Any, cast, overload
 
@@ -42,7 +42,7 @@ from rosbags.typesys import (
 )
 from rosbags.typesys.store import Typestore
 
-from turning_force.core.batch import CurrentArrays
+from turning_force.core.batch import CurrentArrays, InputArrays
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import Experiment, build_experiment, parse_experiment
@@ -61,9 +61,19 @@ from turning_force.session.bag import (
 from turning_force.session.codec import DECODE_ERRORS, Table, TableBuilder
 from turning_force.session.scan import McapScan, MessageSink, scan_mcap
 
-__all__ = ['DECODE_ERRORS', 'Recording', 'Session', 'TopicInfo', 'estimate_metrics',
-           'read_recording', 'read_session', 'recorded_metrics', 'recorded_reachable',
-           'session_typestore']
+__all__ = [
+    'DECODE_ERRORS',
+    'Recording',
+    'Session',
+    'TopicInfo',
+    'applied_overrides',
+    'estimate_metrics',
+    'read_recording',
+    'read_session',
+    'recorded_metrics',
+    'recorded_reachable',
+    'session_typestore',
+]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -338,17 +348,21 @@ class Session:
             return self.currents.t0_s
         return np.array([b.t0_s for b in self.blocks])
 
+    @cached_property
+    def input_arrays(self) -> InputArrays:
+        """The machine's inputs each recorded decision saw, as arrays (NaN in the signals: the
+        session does not say, no answer or recorded before the bridge recorded them)."""
+        s = self.signals
+        enable, threading, dial = s['program_enable'], s['threading'], s['operator_dial_pct']
+        given = ~(np.isnan(enable) | np.isnan(threading))
+        return InputArrays(given, np.where(given & (enable >= 0), enable, -1).astype(np.int8),
+                           np.where(given & (threading >= 0), threading, -1).astype(np.int8),
+                           np.where(given, dial, np.nan))
+
     def inputs(self, k: int) -> InputValues | None:
         """The machine's inputs the decision answering block ``k`` saw; None where the session
-        does not say (no answer, or recorded before the bridge recorded them)."""
-        s = self.signals
-        enable, threading, dial = (s['program_enable'][k], s['threading'][k],
-                                   s['operator_dial_pct'][k])
-        if np.isnan(enable) or np.isnan(threading):
-            return None
-        return InputValues(None if enable < 0 else bool(enable),
-                           None if threading < 0 else bool(threading),
-                           None if np.isnan(dial) else float(dial))
+        does not say."""
+        return self.input_arrays(k)
 
     @property
     def versions(self) -> dict[str, str]:
@@ -770,12 +784,15 @@ def read_session(path: str | Path, partial: bool = False) -> Session:
                    ragged=ragged)
 
 
-def _held(values: FloatArray, initial: float) -> FloatArray:
-    """An override as the PMC holds it: the last value written, where a block had no answer."""
-    written = np.where(np.isfinite(values), np.arange(values.size), -1)
+def applied_overrides(answered_pct: FloatArray, initial_pct: float) -> FloatArray:
+    """The override each block ran at: the answer to the block before, or the last answer
+    before that where a block was not answered (the PMC holds it); ``initial_pct`` before the
+    first answer."""
+    written = np.where(np.isfinite(answered_pct), np.arange(answered_pct.size), -1)
     np.maximum.accumulate(written, out=written)
-    held: FloatArray = np.where(written >= 0, values[np.maximum(written, 0)], initial)
-    return held
+    held = np.where(written >= 0, answered_pct[np.maximum(written, 0)], initial_pct)
+    applied: FloatArray = np.concatenate([[initial_pct], held[:-1]])
+    return applied
 
 
 def _block_lengths_s(session: Session) -> FloatArray:
@@ -820,8 +837,7 @@ def estimate_metrics(session: Session, experiment: Experiment, force_n: FloatArr
     reference = (np.full_like(force_n, experiment.controller.reference_force_n)
                  if reference_n is None else reference_n)
     depth = session.signals['depth_mm'] if session.has_truth else np.ones_like(force_n)
-    initial = experiment.controller.initial_override_pct
-    applied = np.concatenate([[initial], _held(answered_pct, initial)[:-1]])
+    applied = applied_overrides(answered_pct, experiment.controller.initial_override_pct)
     keep = np.isfinite(force_n) & np.isfinite(reference) & np.isfinite(depth)
     return compute_metrics(
         session.t_s[keep], force_n[keep], reference[keep], depth[keep], applied[keep],

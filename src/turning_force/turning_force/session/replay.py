@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.batch import CurrentArrays, InputArrays, replay_chain
+from turning_force.core.batch import CurrentArrays, replay_chain
 from turning_force.core.drive import CurrentBlock
 from turning_force.core.errors import NoCutError, TurningForceError
 from turning_force.core.experiment import Experiment, parse_set
@@ -85,7 +85,7 @@ def replay(session: Session, sets: Sequence[str] = (),
     # The recording says when the bridge was armed; a --set of the arming says otherwise.
     overridden = any(parse_set(text)[1] in ('armed', 'arm_bridge') for text in sets)
     changes = [] if overridden else list(session.arm_changes)
-    trace = replay_chain(experiment, _currents(session), changes, _inputs(session),
+    trace = replay_chain(experiment, _currents(session), changes, session.input_arrays,
                          _recorded_reference(session, experiment, sets), progress=progress)
     force = trace.estimated_force_n
     requested = trace.requested_override_pct
@@ -124,16 +124,6 @@ def _currents(session: Session) -> CurrentArrays | list[CurrentBlock]:
     if session.currents is not None:
         return session.currents
     return list(session.blocks)
-
-
-def _inputs(session: Session) -> InputArrays:
-    """The machine's inputs each recorded decision saw (:meth:`Session.inputs`, as arrays)."""
-    s = session.signals
-    enable, threading, dial = s['program_enable'], s['threading'], s['operator_dial_pct']
-    given = ~(np.isnan(enable) | np.isnan(threading))
-    return InputArrays(given, np.where(given & (enable >= 0), enable, -1).astype(np.int8),
-                       np.where(given & (threading >= 0), threading, -1).astype(np.int8),
-                       np.where(given, dial, np.nan))
 
 
 def _recorded_reference(session: Session, experiment: Experiment,
