@@ -25,6 +25,7 @@ from pymodbus.exceptions import ModbusException
 
 from turning_force.core.errors import TurningForceError
 from turning_force.core.machine import Machine, ModbusTcp
+from turning_force.core.shopfloor import InputValues
 
 __all__ = ['CoilReader', 'InputValues', 'IoResult', 'ModbusPmc', 'PmcIoError', 'pattern_text',
            'quiet_pymodbus']
@@ -41,15 +42,6 @@ class PmcIoError(TurningForceError):
 
 class _Fault(Exception):
     """One failed exchange; the text says which request and why."""
-
-
-@dataclass(frozen=True)
-class InputValues:
-    """The machine's inputs as last read; ``None`` where the machine file wires none."""
-
-    program_enable: bool | None = None
-    threading: bool | None = None
-    operator_dial_pct: float | None = None
 
 
 @dataclass(frozen=True)

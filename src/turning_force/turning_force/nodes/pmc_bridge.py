@@ -41,13 +41,12 @@ from turning_force_msgs.msg import (
 from turning_force.core import kernel
 from turning_force.core.errors import ConfigError, TurningForceError
 from turning_force.core.gate import OverrideGate
-from turning_force.core.loop import command_for_would_act
+from turning_force.core.loop import check_taught_reference, command_for_would_act
 from turning_force.core.machine import Machine, load_machine
 from turning_force.core.overrides import OverrideTable
 from turning_force.core.pmc import BridgeSettings, Decision, Reason
 from turning_force.core.shopfloor import (
     NO_INPUTS,
-    InputValues,
     Learned,
     save_teach_file,
     taught_reference,
@@ -260,10 +259,7 @@ class PmcBridgeNode(LifecycleNode):
                     'keeps its reference_force_n')
             self.diagnostics.warn(text, log=True)
             return
-        if not reference < settings.overload_force_n:
-            raise ConfigError(f'{settings.teach_file}: tools.{settings.tool}.reference_force_n '
-                              f'= {reference!r}: not below pmc_bridge.overload_force_n '
-                              f'({settings.overload_force_n:g} N)')
+        check_taught_reference(reference, settings)
         self._reference_publisher.publish(Float64(data=reference))
         self.get_logger().info(f'{settings.tool}: taught reference {reference:g} N from '
                                f'{settings.teach_file}')
@@ -487,8 +483,7 @@ class PmcBridgeNode(LifecycleNode):
                 return self._fault(decision, fault)
         result = backend.write(decision.code, decision.bits)
         self.inputs = result.inputs
-        self._module_inputs = InputValues(result.inputs.program_enable, result.inputs.threading,
-                                          result.inputs.operator_dial_pct)
+        self._module_inputs = result.inputs
         self._take_inputs()   # for the next decision: these were read after this one
         self._report_inputs()
         if not result.ok:
