@@ -293,9 +293,7 @@ def _write_batch(writer: SessionWriter, topics: list[str],
     data = np.frombuffer(b''.join(p[0] for p in pieces), dtype=np.uint8)
     order = np.lexsort((topic, block))
     sizes, starts = sizes[order], starts[order]
-    placed = np.cumsum(sizes) - sizes
-    gather = np.arange(int(sizes.sum()), dtype=np.int64) + np.repeat(starts - placed, sizes)
-    ordered = data[gather]
+    ordered = data[codec.ranges(starts, sizes)]
     offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     stamps = end_ns[np.maximum(block[order], 0)]
     writer.write_indexed(topics, topic[order].astype(np.int64), stamps, ordered, offsets)

@@ -42,7 +42,7 @@ from turning_force.core.experiment import (
     parse_set,
 )
 from turning_force.core.metrics import METRIC_NAMES
-from turning_force.core.yamlfile import load_yaml, yaml_error_text
+from turning_force.core.yamlfile import load_yaml, yaml_error_text, yaml_text
 
 if TYPE_CHECKING:
     from turning_force.session.reader import Session
@@ -100,7 +100,7 @@ class Axis:
 
     def set_text(self, value: Any) -> str:
         """The ``--set`` assignment of one of the values (its YAML reads back to it)."""
-        return f'{self.name}={_yaml_text(value)}'
+        return f'{self.name}={yaml_text(value)}'
 
 
 GridSpec = Mapping[str, 'Sequence[Any] | str'] | Sequence['str | Axis']
@@ -227,25 +227,9 @@ def _axis(name: str, values: list[Any], log: bool, text: str) -> Axis:
                 and isinstance(value, int) and not isinstance(value, bool)):
             value = float(value)
         if value in out:
-            raise ConfigError(f'{where}: {_yaml_text(value)} is given twice')
+            raise ConfigError(f'{where}: {yaml_text(value)} is given twice')
         out.append(value)
     return Axis(name, tuple(out), log, text)
-
-
-def _yaml_text(value: Any) -> str:
-    """A value as YAML that reads back to it (``1e-05`` as ``1.0e-05``, lists in flow)."""
-    if isinstance(value, tuple):
-        value = list(value)
-    if isinstance(value, float) and math.isfinite(value):
-        text = repr(value)
-        if 'e' in text and '.' not in text.split('e')[0]:
-            mantissa, exponent = text.split('e')
-            text = f'{mantissa}.0e{exponent}'
-        return text
-    if isinstance(value, str) and load_yaml(value) == value:
-        return value   # a word stays a word; anything YAML would read otherwise is quoted
-    dumped: str = yaml.safe_dump(value, default_flow_style=True, width=2**30)
-    return dumped.removesuffix('\n').removesuffix('\n...')
 
 
 # -- the points -----------------------------------------------------------------------------
@@ -521,7 +505,7 @@ class SweepResult:
 
     def _cell(self, value: Any) -> Any:
         if isinstance(value, bool | tuple | list):
-            return _yaml_text(value)
+            return yaml_text(value)
         if isinstance(value, float):
             return repr(value)
         return value
@@ -594,7 +578,7 @@ def _write_figure(result: SweepResult, path: Path, metric: str) -> Path:
                 _ticks(ax.set_xticks, ax.set_xticklabels, first)
             if ranked:
                 ax.plot([x[best[0]]], [values[best[0]]], marker='*', ms=16, color='tab:red',
-                        ls='none', label=f'best: {_yaml_text(first.values[best[0]])}')
+                        ls='none', label=f'best: {yaml_text(first.values[best[0]])}')
                 ax.legend()
             ax.set_xlabel(first.name)
             ax.set_ylabel(metric)
@@ -622,13 +606,13 @@ def _write_figure(result: SweepResult, path: Path, metric: str) -> Path:
             ax.set_xlabel(first.name + (' (log-spaced)' if first.log else ''))
             ax.set_ylabel(second.name + (' (log-spaced)' if second.log else ''))
             if ranked:
-                label = (f'best: {_yaml_text(first.values[best[0]])}, '
-                         f'{_yaml_text(second.values[best[1]])}: {plane[best[0], best[1]]:.4g}')
+                label = (f'best: {yaml_text(first.values[best[0]])}, '
+                         f'{yaml_text(second.values[best[1]])}: {plane[best[0], best[1]]:.4g}')
                 ax.plot([best[0]], [best[1]], marker='*', ms=18, color='tab:red',
                         markeredgecolor='white', ls='none', label=label)
                 ax.legend(loc='upper right', fontsize='small')
             if len(shape) > 2:
-                fixed = ', '.join(f'{a.name}={_yaml_text(a.values[i])}'
+                fixed = ', '.join(f'{a.name}={yaml_text(a.values[i])}'
                                   for a, i in zip(result.axes[2:], best[2:], strict=True))
                 title += f'\nthe slice through the best point: {fixed}'
         ax.set_title(title, fontsize='medium')
@@ -644,7 +628,7 @@ def _ticks(set_ticks: Callable[..., Any], set_labels: Callable[..., Any], axis: 
     n = len(axis.values)
     where = list(range(0, n, max(1, math.ceil(n / 12))))
     set_ticks(where)
-    set_labels([f'{v:.4g}' if isinstance(v, float) else _yaml_text(v)
+    set_labels([f'{v:.4g}' if isinstance(v, float) else yaml_text(v)
                 for v in (axis.values[i] for i in where)], fontsize='small')
 
 

@@ -43,6 +43,7 @@ from turning_force.core.plant import Dynamometer, PlantBlock, PlantSettings
 from turning_force.nodes.convert import (
     block_to_servo_currents,
     inputs_to_msg,
+    last_sample_ns,
     set_stamp,
     stamp_to_ns,
 )
@@ -116,7 +117,7 @@ class LatheSimNode(Node):
                           if settings.dynamometer else None)
         self.create_subscription(FeedOverride, 'pmc/feed_override', self._on_override, 10)
         if not lockstep:
-            self.create_timer(settings.control_period_s, timer_callback(self._tick))
+            self.create_timer(settings.control_period_s, timer_callback(self.step))
 
     def _coil_reader(self, override_table: str) -> Any:
         """The PMC's input image on Modbus/TCP, when ``backend`` is ``modbus_tcp``."""
@@ -187,9 +188,6 @@ class LatheSimNode(Node):
         self._awaited = (self._last_ns, future)
         return future
 
-    def _tick(self) -> None:
-        self.step()
-
     def step(self) -> PlantBlock:
         """Advance one control period at the applied override and publish what it gives.
 
@@ -206,12 +204,9 @@ class LatheSimNode(Node):
         message = block_to_servo_currents(currents, self.FRAME, self._currents_msg)
         first_ns = self._t0_ns + round(currents.t0_s * 1e9)
         set_stamp(message.header.stamp, first_ns)
-        period_ns = round(currents.sample_period_s * 1e9)
-        # The last sample's time: the stamp of everything that answers the block (as
-        # convert.last_sample_ns computes it from the message).
-        last_ns = first_ns + round((len(currents) - 1) * float(currents.sample_period_s) * 1e9)
+        last_ns = last_sample_ns(message)   # the stamp of everything that answers the block
         if self._clock_publisher is not None:  # the block is complete one sample later
-            set_stamp(self._clock_msg.clock, last_ns + period_ns)
+            set_stamp(self._clock_msg.clock, last_ns + round(currents.sample_period_s * 1e9))
             self._clock_publisher.publish(self._clock_msg)
         inputs = inputs_to_msg(block.inputs, self._inputs_msg)   # before the currents: the
         set_stamp(inputs.header.stamp, last_ns)   # bridge's answer to this block must see them

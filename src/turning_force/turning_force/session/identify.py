@@ -31,6 +31,7 @@ from turning_force.core.identify import (
     calibrate_map,
     identify,
 )
+from turning_force.core.yamlfile import yaml_text
 from turning_force.session.bag import BagError, typestore
 from turning_force.session.reader import Session, applied_overrides, read_session
 
@@ -155,25 +156,12 @@ def cut_depth_mm(sessions: Sequence[Session]) -> float | None:
     return max(depths) if depths else None
 
 
-def _yaml_value(value: Any) -> str:
-    """A value as YAML reads back to the same type: floats always with a point and a signed
-    exponent (YAML 1.1 reads ``1e-06`` as text)."""
-    if isinstance(value, str):
-        return value
-    text = repr(float(f'{float(value):.6g}'))
-    if 'e' in text:
-        mantissa, exponent = text.split('e')
-        if '.' not in mantissa:
-            mantissa += '.0'
-        sign = '' if exponent.startswith(('-', '+')) else '+'
-        text = f'{mantissa}e{sign}{exponent}'
-    return text
-
-
 def format_parameters(sections: Mapping[str, Mapping[str, Any]], header: Sequence[str]) -> str:
     """A ROS 2 parameters file (``/**/<node>: ros__parameters: ...``) with a comment header."""
     lines = [f'# {line}' if line else '#' for line in header]
     for node, params in sections.items():
         lines += [f'/**/{node}:', '  ros__parameters:']
-        lines += [f'    {name}: {_yaml_value(value)}' for name, value in params.items()]
+        for name, value in params.items():   # numbers to 6 digits
+            text = value if isinstance(value, str) else yaml_text(float(f'{float(value):.6g}'))
+            lines.append(f'    {name}: {text}')
     return '\n'.join(lines) + '\n'

@@ -613,19 +613,18 @@ def _blocks(table: Table | None) -> tuple[CurrentArrays | None, list[CurrentBloc
     names = ('phase_u_a', 'phase_v_a', 'rotor_angle_rad', 'feed_rate_mm_min')
     if table is None or not table.count:
         return None, None, np.zeros(0, dtype=np.int64), problems
+    malformed = ('servo/currents blocks malformed (no samples, arrays of different lengths or '
+                 'a bad sample period)')
     if not all(n in table.lengths for n in names) or 'sample_period_s' not in table.columns:
-        problems.append(f'{table.count} servo/currents blocks malformed (no samples, arrays '
-                        'of different lengths or a bad sample period)')
+        problems.append(f'{table.count} {malformed}')
         return None, None, np.zeros(0, dtype=np.int64), problems
     period = table.columns['sample_period_s'].astype(np.float64)
     lengths = table.lengths['phase_u_a']
     good = (np.isfinite(period) & (period > 0) & (period < 1.0) & (lengths > 0))
     for name in names[1:]:
         good &= table.lengths[name] == lengths
-    malformed = int(np.count_nonzero(~good))
-    if malformed:
-        problems.append(f'{malformed} servo/currents blocks malformed (no samples, arrays of '
-                        'different lengths or a bad sample period)')
+    if not good.all():
+        problems.append(f'{np.count_nonzero(~good)} {malformed}')
         table = table.take(np.flatnonzero(good))
         period, lengths = period[good], lengths[good]
     first = _stamps(table)
