@@ -87,17 +87,35 @@ MSGTYPES = {
     'pmc/feed_override': 'turning_force_msgs/msg/FeedOverride',
     'sim/cutting_state': 'turning_force_msgs/msg/CuttingState',
 }
-# The fields of the answers that the signals (and the arming) come from; servo/currents and
-# pmc/cuts are kept whole.
-STAMP = ('header.stamp.sec', 'header.stamp.nanosec')
-KEPT = {
-    'force/estimate': (*STAMP, 'force_n', 'force_rate_n_s', 'status'),
-    'control/feed_command': (*STAMP, 'override_pct', 'reference_force_n', 'sliding_variable',
-                             'reference_reachable'),
-    'pmc/feed_override': (*STAMP, 'applied_pct', 'reason', 'armed', 'program_enable',
-                          'threading', 'operator_dial_pct', 'engaged', 'alarm', 'stop_request'),
-    'sim/cutting_state': (*STAMP, 'force_n', 'depth_of_cut_mm', 'feed_mm_rev', 'override_pct'),
+# Each signal of a session (per block, NaN where no message answers it): the answering topic
+# and the field it comes from. The decision's inputs and outputs are NaN in sessions recorded
+# before FeedOverride carried them.
+SIGNALS: dict[str, tuple[str, str]] = {
+    'estimated_force_n': ('force/estimate', 'force_n'),
+    'estimated_force_rate_n_s': ('force/estimate', 'force_rate_n_s'),
+    'estimate_status': ('force/estimate', 'status'),
+    'requested_override_pct': ('control/feed_command', 'override_pct'),
+    'reference_n': ('control/feed_command', 'reference_force_n'),
+    'sliding_variable': ('control/feed_command', 'sliding_variable'),
+    'reference_reachable': ('control/feed_command', 'reference_reachable'),
+    'answered_override_pct': ('pmc/feed_override', 'applied_pct'),
+    'override_reason': ('pmc/feed_override', 'reason'),
+    'program_enable': ('pmc/feed_override', 'program_enable'),
+    'threading': ('pmc/feed_override', 'threading'),
+    'operator_dial_pct': ('pmc/feed_override', 'operator_dial_pct'),
+    'engaged': ('pmc/feed_override', 'engaged'),
+    'alarm': ('pmc/feed_override', 'alarm'),
+    'stop_request': ('pmc/feed_override', 'stop_request'),
+    'force_n': ('sim/cutting_state', 'force_n'),
+    'depth_mm': ('sim/cutting_state', 'depth_of_cut_mm'),
+    'feed_mm_rev': ('sim/cutting_state', 'feed_mm_rev'),
+    'applied_override_pct': ('sim/cutting_state', 'override_pct'),
 }
+# The fields decoded of the answers: their stamps, the signals' and the bridge's armed flag;
+# servo/currents and pmc/cuts are kept whole.
+STAMP = ('header.stamp.sec', 'header.stamp.nanosec')
+KEPT = {topic: (*STAMP, *(f for t, f in SIGNALS.values() if t == topic),
+                *(('armed',) if topic == 'pmc/feed_override' else ())) for topic in ANSWERS}
 SAFE_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)   # libyaml's where installed
 SHOWN = 3   # damaged stretches and gaps named in one line; the rest are counted
 
@@ -721,53 +739,21 @@ def read_session(path: str | Path, partial: bool = False) -> Session:
     expected = recording.recorded('servo/currents')
     read = [f'servo/currents {count} of {expected} blocks read' if expected is not None
             else f'servo/currents {count} blocks read']
+    t_end = (currents.t_end_s if currents is not None else
+             np.array([b.t0_s + len(b) * b.sample_period_s for b in ragged or []]))
     if count:
-        if currents is not None:
-            start, end = float(currents.t0_s[0]), float(currents.t_end_s[-1])
-        else:
-            assert ragged is not None
-            start = ragged[0].t0_s
-            end = ragged[-1].t0_s + len(ragged[-1]) * ragged[-1].sample_period_s
-        read[0] += f' ({start:.3f}-{end:.3f} s)'
+        start = float(currents.t0_s[0]) if currents is not None else (ragged or [])[0].t0_s
+        read[0] += f' ({start:.3f}-{float(t_end[-1]):.3f} s)'
     problems = [*failed, *gaps]
     if recording.missing or problems:
         problems = [*read, *problems]
     warning = recording.check(partial, problems)
     if not count:
         raise BagError(f'{path}: no servo/currents blocks in the session')
-    if currents is not None:
-        t_end = currents.t_end_s
-    else:
-        assert ragged is not None
-        t_end = np.array([b.t0_s + len(b) * b.sample_period_s for b in ragged])
-    estimate, command, override, truth = (tables.get(t) for t in ANSWERS)
-    answering = {id(t): _answers(t, stamps) for t in (estimate, command, override, truth)}
-
-    def column(table: Table | None, name: str) -> FloatArray:
-        return _answer_column(table, answering[id(table)], name)
-
-    signals = {
-        'estimated_force_n': column(estimate, 'force_n'),
-        'estimated_force_rate_n_s': column(estimate, 'force_rate_n_s'),
-        'estimate_status': column(estimate, 'status'),
-        'requested_override_pct': column(command, 'override_pct'),
-        'reference_n': column(command, 'reference_force_n'),
-        'sliding_variable': column(command, 'sliding_variable'),
-        'reference_reachable': column(command, 'reference_reachable'),
-        'answered_override_pct': column(override, 'applied_pct'),
-        'override_reason': column(override, 'reason'),
-        # What the decision saw and set (NaN in sessions recorded before these fields).
-        'program_enable': column(override, 'program_enable'),
-        'threading': column(override, 'threading'),
-        'operator_dial_pct': column(override, 'operator_dial_pct'),
-        'engaged': column(override, 'engaged'),
-        'alarm': column(override, 'alarm'),
-        'stop_request': column(override, 'stop_request'),
-        'force_n': column(truth, 'force_n'),
-        'depth_mm': column(truth, 'depth_of_cut_mm'),
-        'feed_mm_rev': column(truth, 'feed_mm_rev'),
-        'applied_override_pct': column(truth, 'override_pct'),
-    }
+    answering = {t: _answers(tables.get(t), stamps) for t in ANSWERS}
+    signals = {name: _answer_column(tables.get(topic), answering[topic], path)
+               for name, (topic, path) in SIGNALS.items()}
+    override, truth = tables.get('pmc/feed_override'), tables.get('sim/cutting_state')
     arm_changes: list[tuple[float, bool]] = []
     if override is not None and override.count and 'armed' in override.columns:
         carried = _stamps(override)
