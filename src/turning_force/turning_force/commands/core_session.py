@@ -87,17 +87,6 @@ def record_core(experiment: Experiment, out: Path,
     return CoreSession(out, run, len(run.currents))
 
 
-def _parameters(experiment: Experiment) -> dict[str, Any]:
-    """The resolved parameters as ``run_lockstep`` embeds them."""
-    from turning_force.io.pmc_server import simulate_pmc
-
-    resolved = experiment.resolved_params()
-    bridge = experiment.bridge
-    pmc = simulate_pmc(bridge.machine_file, bridge.backend, bridge.override_table)
-    resolved['pmc_bridge'].update(pmc.parameters)
-    return resolved
-
-
 def _stamp(ns: IntArray) -> dict[str, IntArray]:
     return {'header.stamp.sec': ns // 1_000_000_000, 'header.stamp.nanosec': ns % 1_000_000_000}
 
@@ -105,13 +94,15 @@ def _stamp(ns: IntArray) -> dict[str, IntArray]:
 def write_core_session(experiment: Experiment, run: CoreRun, out: Path,
                        progress: Callable[[int, int], None] | None = None) -> Path:
     """Write ``run`` (of ``experiment``) as a session folder ``out``."""
+    from turning_force.io.pmc_server import simulated_parameters
+
     store = typestore()
     writer = SessionWriter(out)
     try:
         writer.set_custom_data(CUSTOM_VERSIONS, dumps(software_versions()))
         if experiment.source and Path(experiment.source).is_file():
             writer.set_custom_data(CUSTOM_EXPERIMENT, Path(experiment.source).read_text())
-        writer.set_custom_data(CUSTOM_PARAMETERS, dumps(_parameters(experiment)))
+        writer.set_custom_data(CUSTOM_PARAMETERS, dumps(simulated_parameters(experiment)[0]))
         writer.set_custom_data(RECORDER, 'run --core: ' + ', '.join(NOT_RECORDED)
                                + ' not recorded')
         for topic, msgtype in TOPICS.items():

@@ -480,11 +480,7 @@ class SweepResult:
         return [row for row in self.table if row['error']]
 
     def _metric(self, metric: str | None) -> str:
-        metric = metric or self.metric
-        if metric not in BETTER:
-            raise ConfigError(f'--metric {metric!r}: not a metric; known: '
-                              f'{", ".join(METRIC_NAMES)}')
-        return metric
+        return _check_metric(metric or self.metric)
 
     def ranked(self, metric: str | None = None) -> list[int]:
         """Indices of the points with a number for ``metric``, best first (ties: grid
@@ -623,6 +619,12 @@ def _write_figure(result: SweepResult, path: Path, metric: str) -> Path:
     return path
 
 
+def _check_metric(metric: str) -> str:
+    if metric not in BETTER:
+        raise ConfigError(f'--metric {metric!r}: not a metric; known: {", ".join(METRIC_NAMES)}')
+    return metric
+
+
 def _ticks(set_ticks: Callable[..., Any], set_labels: Callable[..., Any], axis: Axis) -> None:
     """At most about a dozen labelled ticks, at the points' positions."""
     n = len(axis.values)
@@ -654,8 +656,7 @@ def sweep(experiment: Experiment | str | Path | None, grid: GridSpec, *,
     """
     start_s = time.perf_counter()
     axes = parse_grid(grid)
-    if metric not in BETTER:
-        raise ConfigError(f'--metric {metric!r}: not a metric; known: {", ".join(METRIC_NAMES)}')
+    _check_metric(metric)
     bag: str | None = None
     shown, stamp = '', 0
     if replay is not None:

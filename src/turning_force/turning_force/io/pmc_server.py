@@ -35,11 +35,12 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.simulator.simutils import SimUtils
 
 from turning_force.core.errors import ConfigError, TurningForceError
+from turning_force.core.experiment import Experiment
 from turning_force.core.machine import Machine, load_machine
 from turning_force.io.modbus_pmc import quiet_pymodbus
 
 __all__ = ['PmcSimulation', 'ServerError', 'SimulatedPmcServer', 'Write', 'main',
-           'simulate_pmc']
+           'simulate_pmc', 'simulated_parameters']
 
 COILS = 1024           # 0x0000-0x03FF: room for a WAGO output image at 0x0200
 DISCRETE_INPUTS = 64
@@ -251,6 +252,17 @@ def simulate_pmc(machine_file: str, backend: str, override_table: str) -> PmcSim
         return PmcSimulation('simulated', machine_file)
     return PmcSimulation('modbus_tcp', machine_file,
                          SimulatedPmcServer(machine, modbus.host, modbus.port))
+
+
+def simulated_parameters(experiment: Experiment) -> tuple[dict[str, dict[str, Any]],
+                                                          PmcSimulation]:
+    """A simulated run's resolved parameters, the bridge's PMC laid in (:func:`simulate_pmc`),
+    and that PMC."""
+    bridge = experiment.bridge
+    pmc = simulate_pmc(bridge.machine_file, bridge.backend, bridge.override_table)
+    resolved = experiment.resolved_params()
+    resolved['pmc_bridge'].update(pmc.parameters)
+    return resolved, pmc
 
 
 def main(argv: Sequence[str] | None = None) -> int:
