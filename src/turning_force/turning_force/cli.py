@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import datetime
 import json
 import math
@@ -553,19 +554,8 @@ def _identify(args: argparse.Namespace) -> int:
 
 def _identification_json(ident: Any, controller: dict[str, Any], estimator: dict[str, Any],
                          cut_depth: float | None) -> dict[str, Any]:
-    def fit(f: Any) -> dict[str, Any]:
-        return {'model': f.model, 'residual_rms': f.residual_rms,
-                'residual_unit': f.residual_unit, 'samples': f.samples, 'bic': f.bic,
-                'parameters': {k: {'value': v.value, 'std': v.std, 'unit': v.unit}
-                               for k, v in f.parameters.items()}}
-
-    return {'sessions': list(ident.sessions), 'air_s': ident.air_s, 'cut_s': ident.cut_s,
-            'servo': fit(ident.servo),
-            'servo_candidates': {k: fit(v) for k, v in ident.servo_candidates.items()},
-            'process': fit(ident.process), 'friction': fit(ident.friction),
-            'force_noise_n': {'value': ident.force_noise_n.value,
-                              'std': ident.force_noise_n.std},
-            'cut_depth_mm': cut_depth,
+    # Every fit with its parameters (value, std, unit), residual, samples and BIC.
+    return {**dataclasses.asdict(ident), 'cut_depth_mm': cut_depth,
             'force_controller': controller, 'force_estimator': estimator}
 
 

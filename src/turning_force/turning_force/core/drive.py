@@ -139,6 +139,14 @@ class FrictionModel:
         (a, b), *_ = np.linalg.lstsq(design, i, rcond=None)
         return cls(float(a), float(b), v_min, v_max)
 
+    def parameters(self) -> dict[str, float]:
+        """The ``force_estimator`` parameters that hold this curve: its end points."""
+        span = self.max_feed_mm_min - self.min_feed_mm_min
+        return {'friction_min_feed_mm_min': self.min_feed_mm_min,
+                'friction_max_feed_mm_min': self.max_feed_mm_min,
+                'friction_at_min_feed_a': self.b_a,
+                'friction_at_max_feed_a': self.a_a_per_mm_min2 * span**2 + self.b_a}
+
     def current_a(self, feed_rate_mm_min: FloatArray) -> FloatArray:
         """Friction current [A] at the given feed rates [mm/min] (Eq. 25)."""
         speed = np.abs(feed_rate_mm_min)

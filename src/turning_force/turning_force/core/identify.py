@@ -221,14 +221,8 @@ class Identification:
 
     def estimator_parameters(self) -> dict[str, float]:
         """The ``force_estimator`` parameters: friction (Eq. 25) and the force noise."""
-        m = self.friction_model
-        return {
-            'friction_min_feed_mm_min': m.min_feed_mm_min,
-            'friction_max_feed_mm_min': m.max_feed_mm_min,
-            'friction_at_min_feed_a': self.friction['at_min_feed_a'].value,
-            'friction_at_max_feed_a': self.friction['at_max_feed_a'].value,
-            'kalman_force_noise_n': self.force_noise_n.value,
-        }
+        return {**self.friction_model.parameters(),
+                'kalman_force_noise_n': self.force_noise_n.value}
 
     def ksd_bounds_n_mm(self, margin: float = 0.1, depth_scale: tuple[float, float] = (1.0, 1.0),
                         ) -> tuple[float, float]:
