@@ -52,32 +52,19 @@ __all__ = ['BETTER', 'DEFAULT_METRIC', 'REPLAY_COLUMNS', 'Axis', 'SessionReplay'
 
 # Which way each metric is better (core/metrics.py): errors, times, ripple and override changes
 # lower; the share of the cut that could reach the reference higher.
-BETTER: Mapping[str, str] = {
-    'mean_abs_error_n': 'lower',
-    'steady_mean_abs_error_n': 'lower',
-    'max_abs_error_n': 'lower',
-    'overshoot_n': 'lower',
-    'settling_time_s': 'lower',
-    'ripple_p2p_n': 'lower',
-    'override_changes_per_s': 'lower',
-    'reachable_fraction': 'higher',
-}
+BETTER: Mapping[str, str] = {name: 'higher' if name == 'reachable_fraction' else 'lower'
+                             for name in METRIC_NAMES}
 # The papers' average tracking error.
 DEFAULT_METRIC = 'steady_mean_abs_error_n'
 # What an open-loop point adds: how far the re-run is from the recording (replay's comparison).
 REPLAY_COLUMNS = ('max_force_difference_n', 'max_request_difference_pct', 'differing_overrides',
                   'differing_reasons')
-# How the metrics of several sessions add up: means weighted by blocks, worst cases as maxima.
+# How the metrics of several sessions add up: the means and rates as means weighted by blocks,
+# the worst cases (max error, overshoot, settling time, ripple) as maxima.
 TOTAL_OF: Mapping[str, str] = {
-    'mean_abs_error_n': 'mean',
-    'steady_mean_abs_error_n': 'mean',
-    'max_abs_error_n': 'max',
-    'overshoot_n': 'max',
-    'settling_time_s': 'max',
-    'ripple_p2p_n': 'max',
-    'override_changes_per_s': 'mean',
-    'reachable_fraction': 'mean',
-}
+    name: 'mean' if name in ('mean_abs_error_n', 'steady_mean_abs_error_n',
+                             'override_changes_per_s', 'reachable_fraction') else 'max'
+    for name in METRIC_NAMES}
 # A table of more rows than this would not fit in memory; no sweep needs it.
 MAX_POINTS = 10_000_000
 GRID_FORMS = 'expected node.param=START:STOP:N, START:STOP:Nlog or v1,v2,...'

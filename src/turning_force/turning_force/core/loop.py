@@ -76,9 +76,6 @@ class ControlChain:
     ``reference_force_n``: the reference to start from. ``None``: the tool's taught one where
     the bridge names a teach-in file that has it (as the bridge publishes it when configured),
     else the controller settings'. Replay passes the one the session ran with.
-
-    The gate is the Python one (the bridge's, with the shop-floor behaviours): a few
-    comparisons per block.
     """
 
     def __init__(self, estimator: EstimatorSettings, controller: ControllerSettings,

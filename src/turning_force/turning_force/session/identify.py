@@ -80,11 +80,8 @@ def _measured_per_block(session: Session, axis: str) -> FloatArray | None:
     values = np.array([v for _, v in readings])
     order = np.argsort(times)
     times, values = times[order], values[order]
-    starts = session.block_starts_s
+    starts, ends = session.block_starts_s, session.t_s
     period = session.blocks[0].sample_period_s
-    c = session.currents
-    ends = starts + (np.full(starts.size, c.samples_per_block) if c is not None
-                     else np.array([len(b) for b in session.blocks])) * period
     # Half a sample of slack: a stamp on the block's last sample is inside it.
     first = np.searchsorted(times, starts - 0.5 * period, side='left')
     last = np.searchsorted(times, ends - 0.5 * period, side='left')

@@ -718,13 +718,9 @@ def _cuts(table: Table | None) -> list[CutRecord]:
 
 
 def read_session(path: str | Path, partial: bool = False) -> Session:
-    """Read a session folder written by ``session_recorder``.
-
-    Streams through the MCAP file chunk by chunk, decoding the messages of the topics the
-    signals come from as arrays. Raises :class:`BagError` naming the bag and what is missing if
-    anything is (see the module docstring), unless ``partial``: then :attr:`Session.warning`
-    says it.
-    """
+    """Read a session folder written by ``session_recorder``, chunk by chunk, the signals'
+    topics decoded as arrays. A :class:`BagError` names the bag and what is missing (see the
+    module docstring), unless ``partial``: then :attr:`Session.warning` says it."""
     path = Path(path)
     info, custom, topics = _open(path)
     _check_types(path, topics)
