@@ -168,9 +168,8 @@ def mean_floor_n(experiment: Experiment, horizon_s: float = 0.8) -> float:
         # The best bang-bang switch time over the first horizon_s of the segment.
         horizon = min(end_step - k, round(horizon_s / period))
         # Which way to push: where the force goes from here if the feed is simply held.
-        probe = copy.deepcopy(plant)
-        drift = [float(probe.step(hold).force_n[-1]) for _ in range(horizon)]
-        push = low if drift[0] > reference else high
+        drift = float(copy.deepcopy(plant).step(hold).force_n[-1])
+        push = low if drift > reference else high
         plant, err = _best_switch(plant, push, hold, horizon, reference)
         errors[k:k + horizon] = err
         k += horizon
