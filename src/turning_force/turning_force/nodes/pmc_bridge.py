@@ -45,12 +45,7 @@ from turning_force.core.loop import check_taught_reference, command_for_would_ac
 from turning_force.core.machine import Machine, load_machine
 from turning_force.core.overrides import OverrideTable
 from turning_force.core.pmc import BridgeSettings, Decision, Reason
-from turning_force.core.shopfloor import (
-    NO_INPUTS,
-    Learned,
-    save_teach_file,
-    taught_reference,
-)
+from turning_force.core.shopfloor import NO_INPUTS, Learned, save_teach_file, taught_reference
 from turning_force.nodes.convert import (
     cut_to_msg,
     estimate_from_msg,

@@ -61,19 +61,9 @@ from turning_force.session.bag import (
 from turning_force.session.codec import DECODE_ERRORS, Table, TableBuilder
 from turning_force.session.scan import McapScan, MessageSink, scan_mcap
 
-__all__ = [
-    'DECODE_ERRORS',
-    'Recording',
-    'Session',
-    'TopicInfo',
-    'applied_overrides',
-    'estimate_metrics',
-    'read_recording',
-    'read_session',
-    'recorded_metrics',
-    'recorded_reachable',
-    'session_typestore',
-]
+__all__ = ['DECODE_ERRORS', 'Recording', 'Session', 'TopicInfo', 'applied_overrides',
+           'estimate_metrics', 'read_metadata', 'read_recording', 'read_session',
+           'recorded_metrics', 'recorded_reachable', 'session_typestore']
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -199,7 +189,7 @@ class Recording:
         return '; '.join(warning)
 
 
-def _metadata(path: Path) -> tuple[dict[str, Any], dict[str, str], dict[str, TopicInfo]]:
+def read_metadata(path: Path) -> tuple[dict[str, Any], dict[str, str], dict[str, TopicInfo]]:
     """metadata.yaml: its rosbag2 information, custom data and topics."""
     where = path / 'metadata.yaml'
     try:
@@ -239,7 +229,7 @@ def _open(path: Path) -> tuple[dict[str, Any], dict[str, str], dict[str, TopicIn
                            f'killed before it wrote one): `turning-force repair {path}` '
                            'rebuilds it from what the file holds')
         raise BagError(f'{path}: not a rosbag2 folder (no metadata.yaml)')
-    return _metadata(path)
+    return read_metadata(path)
 
 
 def _scan(mcap: Path, sink: MessageSink | None = None) -> McapScan:
