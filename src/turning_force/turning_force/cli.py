@@ -1,33 +1,7 @@
 """The ``turning-force`` command.
 
-- ``run EXPERIMENT.yaml [--out DIR] [--params FILE] [--set node.param=value ...] [--json]
-  [--core]``: the node
-  graph on the simulator in lock-step, recorded to DIR (default ``bags/<name>_<time>``), with a
-  figure beside it and the metrics printed. ``--core`` runs the ROS-free core loop instead
-  (no session; with ``--out DIR`` recorded to DIR with the graph's topics and messages).
-- ``replay BAG [--experiment FILE] [--set node.param=value ...] [--json]``: estimator,
-  controller and quantiser
-  re-run on the recorded currents; recorded and re-run side by side. ``--publish [--rate R]``
-  plays the bag's sensor topics into a live graph instead.
-- ``replay BAG BAG ... [--set ...] [--jobs N] [--dask ADDRESS] [--json]``: many sessions with
-  the same changes, on local processes or a Dask cluster: one row per session and the totals.
-- ``sweep EXPERIMENT --grid node.param=START:STOP:N ... [--replay BAG] [--metric NAME]
-  [--top K] [--out FILE.csv|.parquet] [--figure FILE.png] [--jobs N] [--dask ADDRESS]``:
-  every combination of the grid (turning_force.commands.sweep), the best printed.
-- ``report BAG [--out FILE.png|FILE.html]``: the paper-style figure and the metrics.
-- ``calibrate BAG BAG ... [--settle-s S] [--json]``: friction (Park Eq. 25) from air-cut
-  sessions at two or more feeds, printed as ``force_estimator`` parameters.
-  ``calibrate --map BAG ... [--out FILE]``: the current-to-force map (Park Eq. 26) from a cut
-  recorded with a dynamometer on ``force/measured``.
-- ``identify BAG... [--out FILE] [--json]``: the machine's model from a commissioning session
-  (dead time, feed servo, process gain and lag, friction, force noise), with uncertainties and
-  residuals, written as a parameters file that ``run`` and ``replay`` take with ``--params``.
-- ``reproduce [--dir config/experiments] [--json]``: the papers' scenarios beside their numbers.
-- ``repair BAG [--json]``: a session rebuilt from what its MCAP still holds (killed, disk full,
-  cut short or damaged), with ``metadata.yaml``'s real counts.
-- ``pmc-check MACHINE.yaml [--dwell-s S] [--control-period-s T]``: steps the machine file's
-  Modbus/TCP module through every override level and reads each back (commissioning: spindle
-  off, the operator watching the override display). Exit 1 at the first level that fails.
+Each command's options are in its ``--help`` (``build_parser``); DESIGN.md and docs/ say what
+each does.
 
 Errors in the user's input (a bad file, key, value or bag) print one line naming it and exit 2.
 A session missing messages is such an error; ``--partial`` reads what is there instead, and a
@@ -41,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import datetime
 import json
 import math
@@ -234,22 +209,12 @@ def _replay(args: argparse.Namespace) -> int:
         play(Path(bag), args.rate, partial=args.partial)
         return 0
     from turning_force.commands.run import print_progress
-    from turning_force.session.replay import replay
+    from turning_force.session.replay import lay_settings, replay
 
-    if args.experiment:
-        session.experiment = load_experiment(args.experiment)
-    if args.params:
-        if session.experiment is None:
-            raise TurningForceError(f'{session.path}: no recorded parameters to lay --params '
-                                    'over; give --experiment')
-        for file in args.params:
-            session.experiment = with_parameters_file(session.experiment, file)
+    lay_settings(session, load_experiment(args.experiment) if args.experiment else None,
+                 args.params)
     result = replay(session, args.set, None if args.json else print_progress)
-    comparison = {'max_force_difference_n': result.max_force_difference_n,
-                  'max_request_difference_pct': result.max_request_difference_pct,
-                  'differing_overrides': result.differing_overrides,
-                  'differing_reasons': result.differing_reasons,
-                  'blocks': len(session.blocks)}
+    comparison = result.comparison(len(session.blocks))
     _print_replay(args, str(session.path), result.recorded, result.rerun, comparison)
     return 0
 
@@ -293,8 +258,7 @@ def _replay_many(args: argparse.Namespace) -> int:
                               partial=args.partial, jobs=args.jobs, dask=args.dask,
                               progress=_progress(args))
     for r in results:
-        if r.warning:
-            print(f'turning-force: warning: {r.warning}', file=sys.stderr)
+        _warn(r)
     failed = [r for r in results if r.error]
     if len(results) == 1 and not failed:
         r = results[0]
@@ -362,22 +326,18 @@ def _sweep(args: argparse.Namespace) -> int:
         if Path(path).suffix.lower() not in suffixes:
             raise TurningForceError(f'{flag} {path}: write {" or ".join(suffixes)}')
         _check_writable(Path(path), flag, new=False)
+    replayed: Any = None
     if args.replay:
         from turning_force.session.reader import read_session
+        from turning_force.session.replay import lay_settings
 
-        session = read_session(args.replay, args.partial)
-        _warn(session)
-        experiment = (load_experiment(args.experiment) if args.experiment
-                      else session.experiment)
-        if experiment is None:
-            raise TurningForceError(f'{session.path}: no recorded parameters to replay with; '
-                                    'give EXPERIMENT')
-        for file in args.params:
-            experiment = with_parameters_file(experiment, file)
-        replayed: Any = session
+        replayed = read_session(args.replay, args.partial)
+        _warn(replayed)
+        lay_settings(replayed, load_experiment(args.experiment) if args.experiment else None,
+                     args.params)
+        experiment = replayed.experiment
     elif args.experiment:
         experiment = _load(args.experiment, args.params, [])
-        replayed = None
     else:
         raise TurningForceError('sweep: give EXPERIMENT, or --replay BAG')
     result = sweep(experiment, axes, replay=replayed, sets=args.set, metric=args.metric,
@@ -594,19 +554,8 @@ def _identify(args: argparse.Namespace) -> int:
 
 def _identification_json(ident: Any, controller: dict[str, Any], estimator: dict[str, Any],
                          cut_depth: float | None) -> dict[str, Any]:
-    def fit(f: Any) -> dict[str, Any]:
-        return {'model': f.model, 'residual_rms': f.residual_rms,
-                'residual_unit': f.residual_unit, 'samples': f.samples, 'bic': f.bic,
-                'parameters': {k: {'value': v.value, 'std': v.std, 'unit': v.unit}
-                               for k, v in f.parameters.items()}}
-
-    return {'sessions': list(ident.sessions), 'air_s': ident.air_s, 'cut_s': ident.cut_s,
-            'servo': fit(ident.servo),
-            'servo_candidates': {k: fit(v) for k, v in ident.servo_candidates.items()},
-            'process': fit(ident.process), 'friction': fit(ident.friction),
-            'force_noise_n': {'value': ident.force_noise_n.value,
-                              'std': ident.force_noise_n.std},
-            'cut_depth_mm': cut_depth,
+    # Every fit with its parameters (value, std, unit), residual, samples and BIC.
+    return {**dataclasses.asdict(ident), 'cut_depth_mm': cut_depth,
             'force_controller': controller, 'force_estimator': estimator}
 
 

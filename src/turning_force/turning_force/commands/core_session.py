@@ -1,27 +1,17 @@
 """``turning-force run --core --out BAG``: the core loop's run recorded as the graph records it.
 
-:func:`turning_force.core.kernel.batch.run_core` keeps every block of a closed-loop run (the DAQ's
-samples, the chain's estimate, command and decision, the plant's state); this writes them as the
-lock-step graph's session (:func:`turning_force.commands.run.run_lockstep` with
-``session_recorder``) holds them: the same topics and message types, each message with the
-stamps and fields the node that publishes it gives it (``lathe_sim``: ``machine/inputs``,
-``servo/currents``, ``servo/joint_state``, ``sim/cutting_state``; ``force_estimator``,
-``force_controller``, ``pmc_bridge``: ``force/estimate``, ``control/feed_command``,
-``pmc/feed_override``, with the override the bridge writes when it is configured first), logged
-at the end of their block (the simulator's ``/clock``, which the recorder's clock follows), and
-the same custom data (the experiment file, the resolved parameters, the software versions).
+:func:`turning_force.core.kernel.batch.run_core` keeps every block of a closed-loop run; this
+writes them as the lock-step graph's session holds them (:data:`TOPICS`): each message with the
+stamps and fields the node that publishes it gives it, in the graph's order per block
+(:data:`PER_BLOCK`, after the override the bridge writes when it is configured), logged at the end
+of its block, with the same custom data. The messages are serialised as arrays
+(:func:`turning_force.session.codec.encode`) and written a chunk at a time: an hour of fig8 takes
+seconds, not the minutes a message at a time would.
 
-The messages are serialised as arrays (:func:`turning_force.session.codec.encode`) and written
-a chunk at a time (:meth:`turning_force.session.bag.SessionWriter.write_indexed`): an hour of
-fig8 takes seconds, not the minutes a message at a time would.
-
-The cut log (``pmc/cuts``) is the gate's (:attr:`CoreRun.cuts`): each cut that ended, logged
-with the override of the block whose answer ended it, as the bridge publishes it. What the
-graph's session has and this one does not (:data:`NOT_RECORDED`): ``/diagnostics`` (the nodes'
-rates, ages and kernel paths: there are no nodes), ``force/reference`` (a reference learned by
-teach-in: the core run keeps none), ``force/measured`` (a dynamometer's reading, drawn by the
-node from its own random stream), and the text of ``detail`` in ``pmc/feed_override`` (empty;
-the reason is there). The signals the reader and replay take are equal.
+Not recorded (:data:`NOT_RECORDED`): ``/diagnostics`` (there are no nodes),
+``force/reference`` (the core run learns none), ``force/measured`` (a dynamometer the node draws
+from its own random stream), and the text of ``detail`` in ``pmc/feed_override``. The signals
+the reader and replay take are equal.
 """
 
 from __future__ import annotations
@@ -97,17 +87,6 @@ def record_core(experiment: Experiment, out: Path,
     return CoreSession(out, run, len(run.currents))
 
 
-def _parameters(experiment: Experiment) -> dict[str, Any]:
-    """The resolved parameters as ``run_lockstep`` embeds them."""
-    from turning_force.io.pmc_server import simulate_pmc
-
-    resolved = experiment.resolved_params()
-    bridge = experiment.bridge
-    pmc = simulate_pmc(bridge.machine_file, bridge.backend, bridge.override_table)
-    resolved['pmc_bridge'].update(pmc.parameters)
-    return resolved
-
-
 def _stamp(ns: IntArray) -> dict[str, IntArray]:
     return {'header.stamp.sec': ns // 1_000_000_000, 'header.stamp.nanosec': ns % 1_000_000_000}
 
@@ -115,13 +94,15 @@ def _stamp(ns: IntArray) -> dict[str, IntArray]:
 def write_core_session(experiment: Experiment, run: CoreRun, out: Path,
                        progress: Callable[[int, int], None] | None = None) -> Path:
     """Write ``run`` (of ``experiment``) as a session folder ``out``."""
+    from turning_force.io.pmc_server import simulated_parameters
+
     store = typestore()
     writer = SessionWriter(out)
     try:
         writer.set_custom_data(CUSTOM_VERSIONS, dumps(software_versions()))
         if experiment.source and Path(experiment.source).is_file():
             writer.set_custom_data(CUSTOM_EXPERIMENT, Path(experiment.source).read_text())
-        writer.set_custom_data(CUSTOM_PARAMETERS, dumps(_parameters(experiment)))
+        writer.set_custom_data(CUSTOM_PARAMETERS, dumps(simulated_parameters(experiment)[0]))
         writer.set_custom_data(RECORDER, 'run --core: ' + ', '.join(NOT_RECORDED)
                                + ' not recorded')
         for topic, msgtype in TOPICS.items():
@@ -303,9 +284,7 @@ def _write_batch(writer: SessionWriter, topics: list[str],
     data = np.frombuffer(b''.join(p[0] for p in pieces), dtype=np.uint8)
     order = np.lexsort((topic, block))
     sizes, starts = sizes[order], starts[order]
-    placed = np.cumsum(sizes) - sizes
-    gather = np.arange(int(sizes.sum()), dtype=np.int64) + np.repeat(starts - placed, sizes)
-    ordered = data[gather]
+    ordered = data[codec.ranges(starts, sizes)]
     offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     stamps = end_ns[np.maximum(block[order], 0)]
     writer.write_indexed(topics, topic[order].astype(np.int64), stamps, ordered, offsets)

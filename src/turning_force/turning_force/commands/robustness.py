@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,13 +26,11 @@ from turning_force.core.identify import identify
 from turning_force.core.kernel.record import record
 from turning_force.core.kernel.simulate import simulate
 from turning_force.core.plant.lathe import LathePlant
-from turning_force.core.plant.settings import PlantSettings
 
-__all__ = ['CONTROLLERS', 'MATRIX', 'Scenario', 'identified_sets', 'mean_floor_n', 'model_sets',
-           'run_scenario', 'scenario_experiment']
+__all__ = ['CONTROLLERS', 'MATRIX', 'Scenario', 'identified_sets', 'mean_floor_n', 'run_scenario',
+           'scenario_experiment']
 
 FIG8 = 'park1998_fig8.yaml'
-NOMINAL_KS_N_MM2 = 2200.0
 
 
 @dataclass(frozen=True)
@@ -77,25 +75,6 @@ CONTROLLERS: dict[str, tuple[str, ...]] = {
     'pi': ('force_controller.controller=pi',),
     'adaptive': ('force_controller.controller=adaptive',),
 }
-
-
-def model_sets(plant: PlantSettings, depths_mm: Sequence[float]) -> tuple[str, ...]:
-    """The controller's machine model as identification gives it: dead time, servo, process
-    time constant, and the K_s d bounds (Park Eq. 7) for the depths to be cut, with 10 %
-    margin either side of K_s times the shallowest and the deepest cut."""
-    cut = [d for d in depths_mm if d > 0] or [1.0]
-    ks = plant.specific_cutting_force_n_mm2
-    sets = [
-        f'force_controller.model_dead_time_s={plant.pmc_dead_time_s!r}',
-        f'force_controller.model_servo_model={plant.servo_model}',
-        f'force_controller.model_servo_time_constant_s={plant.servo_time_constant_s!r}',
-        f'force_controller.model_servo_natural_freq_rad_s={plant.servo_natural_freq_rad_s!r}',
-        f'force_controller.model_servo_damping={plant.servo_damping!r}',
-        f'force_controller.model_cutting_time_constant_s={plant.cutting_time_constant_s!r}',
-        f'force_controller.smc_ksd_min_n_mm={0.9 * ks * min(cut):.6g}',
-        f'force_controller.smc_ksd_max_n_mm={1.1 * ks * max(cut):.6g}',
-    ]
-    return tuple(sets)
 
 
 COMMISSIONING = 'commissioning.yaml'
@@ -189,9 +168,8 @@ def mean_floor_n(experiment: Experiment, horizon_s: float = 0.8) -> float:
         # The best bang-bang switch time over the first horizon_s of the segment.
         horizon = min(end_step - k, round(horizon_s / period))
         # Which way to push: where the force goes from here if the feed is simply held.
-        probe = copy.deepcopy(plant)
-        drift = [float(probe.step(hold).force_n[-1]) for _ in range(horizon)]
-        push = low if drift[0] > reference else high
+        drift = float(copy.deepcopy(plant).step(hold).force_n[-1])
+        push = low if drift > reference else high
         plant, err = _best_switch(plant, push, hold, horizon, reference)
         errors[k:k + horizon] = err
         k += horizon

@@ -40,7 +40,7 @@ from rclpy.parameter import Parameter
 
 from turning_force.core.errors import TurningForceError
 from turning_force.core.experiment import Experiment
-from turning_force.io.pmc_server import simulate_pmc
+from turning_force.io.pmc_server import simulated_parameters
 from turning_force.nodes.force_controller import ForceControllerNode
 from turning_force.nodes.force_estimator import ForceEstimatorNode
 from turning_force.nodes.lathe_sim import LatheSimNode
@@ -159,11 +159,7 @@ def run_lockstep(experiment: Experiment, out_dir: Path,
     subscription, the recorder writing on the executor's thread), for the benchmark.
     """
     context = isolated_context()
-    resolved = experiment.resolved_params()
-    bridge_settings = experiment.bridge
-    pmc = simulate_pmc(bridge_settings.machine_file, bridge_settings.backend,
-                       bridge_settings.override_table)
-    resolved['pmc_bridge'].update(pmc.parameters)
+    resolved, pmc = simulated_parameters(experiment)
     nodes: list[Node] = []
     executor = make_executor(context, executor_kind)
     try:

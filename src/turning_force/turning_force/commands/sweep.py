@@ -1,34 +1,17 @@
 """Parameter sweeps, and the replay of many sessions, on all local cores or a Dask cluster.
 
-:func:`sweep` runs every combination of a grid of settings, closed loop on the simulator
-(:func:`turning_force.core.kernel.simulate.simulate`) or open loop on a recorded session
-(:func:`turning_force.session.replay.replay`), and scores each point with the DESIGN.md
-metrics. A grid has one axis per setting:
+:func:`sweep` runs every combination of a grid of settings (:func:`parse_grid`: one axis per
+setting, ``START:STOP:N``, ``START:STOP:Nlog`` or ``v1,v2,...``), closed loop on the simulator
+or open loop on a recorded session, and scores each point with the DESIGN.md metrics. Every
+value is checked against its setting before anything runs; what fails at one point while it
+runs is that point's ``error``, and the sweep goes on. :func:`replay_sessions` replays many
+sessions with one set of changes. docs/sessions.md shows both at work.
 
-- ``node.param=START:STOP:N``: N values evenly spaced, both ends included;
-- ``node.param=START:STOP:Nlog``: N values evenly spaced in the logarithm (START, STOP > 0);
-- ``node.param=v1,v2,...``: a list, each value read as YAML (``smc,adaptive``, ``0.1,0.2``,
-  ``[1, 2],[2, 3]`` for a list-valued setting).
-
-Every value is checked against the setting's spec (and the experiment's rules) before anything
-runs, so a sweep never starts on a grid it would refuse half-way; what fails at a point while
-it runs (a combination two axes make invalid, a run that raises) is that point's ``error``,
-as text, and the sweep goes on.
-
-Speed: the points go to worker processes ('forkserver': no fork of a process with threads) in
-chunks; each worker loads the compiled kernel once, builds each point's settings from the
-experiment's sections (:meth:`Experiment.with_sets`) and runs it compiled. Results come back as
-small dicts. ``test/bench/bench_sweep.py``
-measures it.
-
-:func:`replay_sessions` replays many sessions with one set of changes (a shop's recordings
-with a new setting), one task per session.
-
-With ``dask=SCHEDULER_ADDRESS`` (or a ``distributed.Client``) both run on a Dask cluster
-(``pip install 'turning_force[dask]'``; dask is imported only then): chunks of points, or
-sessions, go out with ``Client.map``. The workers need turning_force installed (the same
-version), and a replayed session, a ``--params`` file, must be readable at the same path on
-them (a shared file system). Results are the same as on the local cores, bit for bit.
+The points go to worker processes ('forkserver': no fork of a process with threads) in chunks;
+each worker loads the compiled kernel once. With ``dask=SCHEDULER_ADDRESS`` (or a
+``distributed.Client``; dask is imported only then) chunks go out with ``Client.map``: the
+workers need the same turning_force, and the files at the same paths. Results are the same as
+on the local cores, bit for bit. ``test/bench/bench_sweep.py`` measures it.
 """
 
 from __future__ import annotations
@@ -54,57 +37,34 @@ from turning_force.core.experiment import (
     SETTINGS_OF,
     SHARED,
     Experiment,
+    check_node,
     load_experiment,
     parse_set,
 )
 from turning_force.core.metrics import METRIC_NAMES
-from turning_force.core.yamlfile import load_yaml, yaml_error_text
+from turning_force.core.yamlfile import load_yaml, yaml_error_text, yaml_text
 
 if TYPE_CHECKING:
     from turning_force.session.reader import Session
 
-__all__ = [
-    'BETTER',
-    'DEFAULT_METRIC',
-    'REPLAY_COLUMNS',
-    'Axis',
-    'SessionReplay',
-    'SweepResult',
-    'parse_axis',
-    'parse_grid',
-    'replay_sessions',
-    'replay_totals',
-    'sweep',
-]
+__all__ = ['BETTER', 'DEFAULT_METRIC', 'REPLAY_COLUMNS', 'Axis', 'SessionReplay', 'SweepResult',
+           'parse_axis', 'parse_grid', 'replay_sessions', 'replay_totals', 'sweep']
 
 # Which way each metric is better (core/metrics.py): errors, times, ripple and override changes
 # lower; the share of the cut that could reach the reference higher.
-BETTER: Mapping[str, str] = {
-    'mean_abs_error_n': 'lower',
-    'steady_mean_abs_error_n': 'lower',
-    'max_abs_error_n': 'lower',
-    'overshoot_n': 'lower',
-    'settling_time_s': 'lower',
-    'ripple_p2p_n': 'lower',
-    'override_changes_per_s': 'lower',
-    'reachable_fraction': 'higher',
-}
+BETTER: Mapping[str, str] = {name: 'higher' if name == 'reachable_fraction' else 'lower'
+                             for name in METRIC_NAMES}
 # The papers' average tracking error.
 DEFAULT_METRIC = 'steady_mean_abs_error_n'
 # What an open-loop point adds: how far the re-run is from the recording (replay's comparison).
 REPLAY_COLUMNS = ('max_force_difference_n', 'max_request_difference_pct', 'differing_overrides',
                   'differing_reasons')
-# How the metrics of several sessions add up: means weighted by blocks, worst cases as maxima.
+# How the metrics of several sessions add up: the means and rates as means weighted by blocks,
+# the worst cases (max error, overshoot, settling time, ripple) as maxima.
 TOTAL_OF: Mapping[str, str] = {
-    'mean_abs_error_n': 'mean',
-    'steady_mean_abs_error_n': 'mean',
-    'max_abs_error_n': 'max',
-    'overshoot_n': 'max',
-    'settling_time_s': 'max',
-    'ripple_p2p_n': 'max',
-    'override_changes_per_s': 'mean',
-    'reachable_fraction': 'mean',
-}
+    name: 'mean' if name in ('mean_abs_error_n', 'steady_mean_abs_error_n',
+                             'override_changes_per_s', 'reachable_fraction') else 'max'
+    for name in METRIC_NAMES}
 # A table of more rows than this would not fit in memory; no sweep needs it.
 MAX_POINTS = 10_000_000
 GRID_FORMS = 'expected node.param=START:STOP:N, START:STOP:Nlog or v1,v2,...'
@@ -127,7 +87,7 @@ class Axis:
 
     def set_text(self, value: Any) -> str:
         """The ``--set`` assignment of one of the values (its YAML reads back to it)."""
-        return f'{self.name}={_yaml_text(value)}'
+        return f'{self.name}={yaml_text(value)}'
 
 
 GridSpec = Mapping[str, 'Sequence[Any] | str'] | Sequence['str | Axis']
@@ -170,7 +130,7 @@ def parse_axis(text: str) -> Axis:
     if not (sep and dot and node and param and raw.strip()):
         raise ConfigError(f'{where}: {GRID_FORMS}')
     name = f'{node}.{param}'
-    _check_node(node, where)
+    check_node(node, f'{where}: unknown node {node!r}')
     stripped = raw.strip()
     if ':' in stripped and stripped[0] not in '[{"\'':
         values, log = _range(stripped, name, where)
@@ -183,13 +143,6 @@ def parse_axis(text: str) -> Axis:
     if not isinstance(values, list) or not values or any(v is None for v in values):
         raise ConfigError(f'{where}: an empty value; {GRID_FORMS}')
     return _axis(name, values, False, text)
-
-
-def _check_node(node: str, where: str) -> None:
-    # Experiment.with_sets' words, under --grid.
-    if node != SHARED and node not in SETTINGS_OF and node not in OTHER_SECTIONS:
-        known = ', '.join([SHARED, *SETTINGS_OF, *OTHER_SECTIONS])
-        raise ConfigError(f'{where}: unknown node {node!r}; known: {known}')
 
 
 def _declared(node: str, param: str) -> tuple[type, bool] | None:
@@ -247,7 +200,7 @@ def _axis(name: str, values: list[Any], log: bool, text: str) -> Axis:
     if '.' not in name:
         raise ConfigError(f'{where}: {GRID_FORMS}')
     node, param = name.rsplit('.', 1)
-    _check_node(node, where)
+    check_node(node, f'{where}: unknown node {node!r}')
     if not values:
         raise ConfigError(f'{where}: no values')
     declared = _declared(node, param)
@@ -261,25 +214,9 @@ def _axis(name: str, values: list[Any], log: bool, text: str) -> Axis:
                 and isinstance(value, int) and not isinstance(value, bool)):
             value = float(value)
         if value in out:
-            raise ConfigError(f'{where}: {_yaml_text(value)} is given twice')
+            raise ConfigError(f'{where}: {yaml_text(value)} is given twice')
         out.append(value)
     return Axis(name, tuple(out), log, text)
-
-
-def _yaml_text(value: Any) -> str:
-    """A value as YAML that reads back to it (``1e-05`` as ``1.0e-05``, lists in flow)."""
-    if isinstance(value, tuple):
-        value = list(value)
-    if isinstance(value, float) and math.isfinite(value):
-        text = repr(value)
-        if 'e' in text and '.' not in text.split('e')[0]:
-            mantissa, exponent = text.split('e')
-            text = f'{mantissa}.0e{exponent}'
-        return text
-    if isinstance(value, str) and load_yaml(value) == value:
-        return value   # a word stays a word; anything YAML would read otherwise is quoted
-    dumped: str = yaml.safe_dump(value, default_flow_style=True, width=2**30)
-    return dumped.removesuffix('\n').removesuffix('\n...')
 
 
 # -- the points -----------------------------------------------------------------------------
@@ -530,11 +467,7 @@ class SweepResult:
         return [row for row in self.table if row['error']]
 
     def _metric(self, metric: str | None) -> str:
-        metric = metric or self.metric
-        if metric not in BETTER:
-            raise ConfigError(f'--metric {metric!r}: not a metric; known: '
-                              f'{", ".join(METRIC_NAMES)}')
-        return metric
+        return _check_metric(metric or self.metric)
 
     def ranked(self, metric: str | None = None) -> list[int]:
         """Indices of the points with a number for ``metric``, best first (ties: grid
@@ -555,7 +488,7 @@ class SweepResult:
 
     def _cell(self, value: Any) -> Any:
         if isinstance(value, bool | tuple | list):
-            return _yaml_text(value)
+            return yaml_text(value)
         if isinstance(value, float):
             return repr(value)
         return value
@@ -628,7 +561,7 @@ def _write_figure(result: SweepResult, path: Path, metric: str) -> Path:
                 _ticks(ax.set_xticks, ax.set_xticklabels, first)
             if ranked:
                 ax.plot([x[best[0]]], [values[best[0]]], marker='*', ms=16, color='tab:red',
-                        ls='none', label=f'best: {_yaml_text(first.values[best[0]])}')
+                        ls='none', label=f'best: {yaml_text(first.values[best[0]])}')
                 ax.legend()
             ax.set_xlabel(first.name)
             ax.set_ylabel(metric)
@@ -656,13 +589,13 @@ def _write_figure(result: SweepResult, path: Path, metric: str) -> Path:
             ax.set_xlabel(first.name + (' (log-spaced)' if first.log else ''))
             ax.set_ylabel(second.name + (' (log-spaced)' if second.log else ''))
             if ranked:
-                label = (f'best: {_yaml_text(first.values[best[0]])}, '
-                         f'{_yaml_text(second.values[best[1]])}: {plane[best[0], best[1]]:.4g}')
+                label = (f'best: {yaml_text(first.values[best[0]])}, '
+                         f'{yaml_text(second.values[best[1]])}: {plane[best[0], best[1]]:.4g}')
                 ax.plot([best[0]], [best[1]], marker='*', ms=18, color='tab:red',
                         markeredgecolor='white', ls='none', label=label)
                 ax.legend(loc='upper right', fontsize='small')
             if len(shape) > 2:
-                fixed = ', '.join(f'{a.name}={_yaml_text(a.values[i])}'
+                fixed = ', '.join(f'{a.name}={yaml_text(a.values[i])}'
                                   for a, i in zip(result.axes[2:], best[2:], strict=True))
                 title += f'\nthe slice through the best point: {fixed}'
         ax.set_title(title, fontsize='medium')
@@ -673,12 +606,18 @@ def _write_figure(result: SweepResult, path: Path, metric: str) -> Path:
     return path
 
 
+def _check_metric(metric: str) -> str:
+    if metric not in BETTER:
+        raise ConfigError(f'--metric {metric!r}: not a metric; known: {", ".join(METRIC_NAMES)}')
+    return metric
+
+
 def _ticks(set_ticks: Callable[..., Any], set_labels: Callable[..., Any], axis: Axis) -> None:
     """At most about a dozen labelled ticks, at the points' positions."""
     n = len(axis.values)
     where = list(range(0, n, max(1, math.ceil(n / 12))))
     set_ticks(where)
-    set_labels([f'{v:.4g}' if isinstance(v, float) else _yaml_text(v)
+    set_labels([f'{v:.4g}' if isinstance(v, float) else yaml_text(v)
                 for v in (axis.values[i] for i in where)], fontsize='small')
 
 
@@ -704,8 +643,7 @@ def sweep(experiment: Experiment | str | Path | None, grid: GridSpec, *,
     """
     start_s = time.perf_counter()
     axes = parse_grid(grid)
-    if metric not in BETTER:
-        raise ConfigError(f'--metric {metric!r}: not a metric; known: {", ".join(METRIC_NAMES)}')
+    _check_metric(metric)
     bag: str | None = None
     shown, stamp = '', 0
     if replay is not None:
@@ -819,29 +757,17 @@ class _ReplayJob:
 def _replay_bag(job: _ReplayJob, bag: str, shown: str) -> SessionReplay:
     """One session through :func:`turning_force.session.replay.replay`; an error is kept as
     the session's, not raised (the other sessions go on). ``shown``: the path as given."""
-    from turning_force.core.overlay import with_parameters_file
     from turning_force.session.reader import read_session
-    from turning_force.session.replay import replay
+    from turning_force.session.replay import lay_settings, replay
 
     _load_kernel()
     try:
         session = read_session(bag, job.partial)
-        if job.experiment is not None:
-            session.experiment = job.experiment
-        if job.params and session.experiment is None:
-            raise TurningForceError(f'{session.path}: no recorded parameters to lay --params '
-                                    'over; give --experiment')
-        for file in job.params:
-            assert session.experiment is not None
-            session.experiment = with_parameters_file(session.experiment, file)
+        lay_settings(session, job.experiment, job.params)
         result = replay(session, job.sets)
     except Exception as exc:   # this session's error, reported with it
         return SessionReplay(shown, error=_error_text(exc).replace(bag, shown))
-    comparison = {'max_force_difference_n': result.max_force_difference_n,
-                  'max_request_difference_pct': result.max_request_difference_pct,
-                  'differing_overrides': result.differing_overrides,
-                  'differing_reasons': result.differing_reasons,
-                  'blocks': len(session.blocks)}
+    comparison = result.comparison(len(session.blocks))
     return SessionReplay(shown, len(session.blocks), dict(result.rerun),
                          dict(result.recorded), comparison, session.warning.replace(bag, shown))
 

@@ -36,16 +36,8 @@ from turning_force.core.pmc.settings import BridgeSettings
 from turning_force.core.settings import Settings, setting
 from turning_force.core.yamlfile import load_yaml, read_text, yaml_error_text
 
-__all__ = [
-    'Experiment',
-    'RecorderSettings',
-    'RunSettings',
-    'build_experiment',
-    'load_experiment',
-    'parameter_sections',
-    'parse_experiment',
-    'parse_set',
-]
+__all__ = ['Experiment', 'RecorderSettings', 'RunSettings', 'build_experiment', 'check_node',
+           'load_experiment', 'parameter_sections', 'parse_experiment', 'parse_set']
 
 SHARED = '/**'
 _T = TypeVar('_T')
@@ -125,9 +117,7 @@ class Experiment:
         sections = {name: dict(params) for name, params in self.sections.items()}
         for text in assignments:
             node, param, value = parse_set(text)   # '/**.param=value' sets a shared value
-            if node != SHARED and node not in SETTINGS_OF and node not in OTHER_SECTIONS:
-                known = ', '.join([SHARED, *SETTINGS_OF, *OTHER_SECTIONS])
-                raise ConfigError(f'--set {text!r}: unknown node {node!r}; known: {known}')
+            check_node(node, f'--set {text!r}: unknown node {node!r}')
             sections.setdefault(node, {})[param] = value
         return build_experiment(self.source, sections)
 
@@ -143,6 +133,13 @@ SETTINGS_OF: Mapping[str, type[Settings]] = {
 OTHER_SECTIONS: Mapping[str, type[Settings]] = {
     'session_recorder': RecorderSettings,
 }
+
+
+def check_node(node: str, unknown: str) -> None:
+    """Refuse a section no node of the graph has: ``unknown`` and the known ones."""
+    if node != SHARED and node not in SETTINGS_OF and node not in OTHER_SECTIONS:
+        known = ', '.join([SHARED, *SETTINGS_OF, *OTHER_SECTIONS])
+        raise ConfigError(f'{unknown}; known: {known}')
 
 
 def parse_set(text: str) -> tuple[str, str, Any]:
@@ -193,9 +190,7 @@ def parameter_sections(data: Any, path: str) -> dict[str, dict[str, Any]]:
         params = body.get('ros__parameters') if isinstance(body, dict) else None
         if not isinstance(params, dict):
             raise ConfigError(f'{path}: {node}: expected a ros__parameters mapping')
-        if name != SHARED and name not in SETTINGS_OF and name not in OTHER_SECTIONS:
-            known = ', '.join([SHARED, *SETTINGS_OF, *OTHER_SECTIONS])
-            raise ConfigError(f'{path}: {node}: unknown node; known: {known}')
+        check_node(name, f'{path}: {node}: unknown node')
         for key in params:
             if not str(key).isprintable():
                 raise ConfigError(f'{path}: {node}: {key!r}: not a parameter name')
@@ -263,28 +258,18 @@ def _as(value: object, kind: type[_T]) -> _T:
 
 
 def _check_consistent(e: Experiment) -> None:
-    period = e.run.control_period_s
-    for section in (e.plant, e.controller, e.bridge):
-        if section.control_period_s != period:
-            raise ConfigError(
-                f'{section.SECTION}.control_period_s = {section.control_period_s!r}: differs '
-                f'from experiment.control_period_s = {period!r}; set it once under {SHARED}'
-            )
+    # Settings several nodes declare must agree: one value, set once under /**.
+    tied = (('control_period_s', e.run, (e.plant, e.controller, e.bridge)),
+            ('max_feed_force_n', e.bridge, (e.controller,)),
+            ('override_table', e.bridge, (e.controller, e.plant)))
+    for key, first, others in tied:
+        for section in others:
+            if getattr(section, key) != getattr(first, key):
+                raise ConfigError(
+                    f'{section.SECTION}.{key} = {getattr(section, key)!r}: differs from '
+                    f'{first.SECTION}.{key} = {getattr(first, key)!r}; set it once under {SHARED}')
     if e.controller.reference_force_n >= e.bridge.overload_force_n:
         raise ConfigError(
             f'force_controller.reference_force_n = {e.controller.reference_force_n!r}: not below '
             f'pmc_bridge.overload_force_n = {e.bridge.overload_force_n!r}: the regulated force '
             'would hold the feed')
-    if e.controller.max_feed_force_n != e.bridge.max_feed_force_n:
-        raise ConfigError(
-            f'force_controller.max_feed_force_n = {e.controller.max_feed_force_n!r}: differs '
-            f'from pmc_bridge.max_feed_force_n = {e.bridge.max_feed_force_n!r}; set it once '
-            f'under {SHARED}')
-    for section in (e.controller, e.plant):
-        if section.override_table != e.bridge.override_table:
-            raise ConfigError(
-                f'{section.SECTION}.override_table = {section.override_table!r}: differs from '
-                f'pmc_bridge.override_table = {e.bridge.override_table!r}; set it once under '
-                f'{SHARED}'
-            )
-

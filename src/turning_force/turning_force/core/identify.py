@@ -50,24 +50,13 @@ from turning_force.core.errors import TurningForceError
 from turning_force.core.plant.drive import CurrentForceMap, FrictionModel
 from turning_force.core.settings import Settings, setting
 
-__all__ = [
-    'Estimate',
-    'Fit',
-    'Identification',
-    'IdentifyError',
-    'IdentifySettings',
-    'MapCalibration',
-    'Recording',
-    'calibrate_map',
-    'identify',
-    'servo_matrices',
-    'servo_response',
-]
+__all__ = ['Estimate', 'Fit', 'Identification', 'IdentifyError', 'IdentifySettings',
+           'MapCalibration', 'Recording', 'calibrate_map', 'identify', 'servo_matrices',
+           'servo_response']
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
-SERVO_MODELS = ('first_order', 'second_order')
 SERVO_DECIMATION = 5
 
 
@@ -147,12 +136,6 @@ class Recording:
     @property
     def duration_s(self) -> float:
         return self.blocks * self.block_period_s
-
-    def sample_times_s(self) -> FloatArray:
-        """Time of every sample, shape ``(blocks, samples)``."""
-        offsets = np.arange(self.samples) * self.sample_period_s
-        out: FloatArray = self.block_start_s[:, None] + offsets[None, :]
-        return out
 
     def commanded_feed_mm_min(self) -> FloatArray:
         """The feed the override commands, per block (Park's v_c before the dead time)."""
@@ -238,14 +221,8 @@ class Identification:
 
     def estimator_parameters(self) -> dict[str, float]:
         """The ``force_estimator`` parameters: friction (Eq. 25) and the force noise."""
-        m = self.friction_model
-        return {
-            'friction_min_feed_mm_min': m.min_feed_mm_min,
-            'friction_max_feed_mm_min': m.max_feed_mm_min,
-            'friction_at_min_feed_a': self.friction['at_min_feed_a'].value,
-            'friction_at_max_feed_a': self.friction['at_max_feed_a'].value,
-            'kalman_force_noise_n': self.force_noise_n.value,
-        }
+        return {**self.friction_model.parameters(),
+                'kalman_force_noise_n': self.force_noise_n.value}
 
     def ksd_bounds_n_mm(self, margin: float = 0.1, depth_scale: tuple[float, float] = (1.0, 1.0),
                         ) -> tuple[float, float]:
@@ -412,6 +389,17 @@ def _covariance(result: optimize.OptimizeResult, residual: FloatArray) -> FloatA
     return cov
 
 
+def _linear_fit(design: FloatArray, target: FloatArray
+                ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Linear least squares: the coefficients, the residual and their covariance
+    ``(X^T X)^-1 s^2``, widened for a correlated residual."""
+    theta, *_ = np.linalg.lstsq(design, target, rcond=None)
+    residual: FloatArray = design @ theta - target
+    cov: FloatArray = np.linalg.inv(design.T @ design) * float(np.dot(residual, residual)) / max(
+        target.size - design.shape[1], 1) * _inflation(residual)
+    return np.asarray(theta, dtype=np.float64), residual, cov
+
+
 def _bic(residual: FloatArray, parameters: int, floor: float) -> float:
     n = residual.size
     variance = max(float(np.dot(residual, residual)) / n, floor * floor)
@@ -503,18 +491,8 @@ class _Segments:
 
 
 def _segments(rec: Recording, s: IdentifySettings) -> _Segments:
-    engaged = np.nan_to_num(rec.estimated_force_n, nan=0.0) > s.cut_force_n
-    runs: list[tuple[int, int]] = []
-    k = 0
-    while k < rec.blocks:
-        if engaged[k]:
-            end = k
-            while end < rec.blocks and engaged[end]:
-                end += 1
-            runs.append((k, end))
-            k = end
-        else:
-            k += 1
+    engaged = (np.nan_to_num(rec.estimated_force_n, nan=0.0) > s.cut_force_n).astype(float)
+    runs = [(p.start, p.stop) for p in _plateaus(engaged, 0, rec.blocks) if p.level_pct]
     per_block = rec.block_period_s
     cut = None
     air_stop = rec.blocks
@@ -577,13 +555,17 @@ def _check_sessions(recordings: Sequence[Recording], s: IdentifySettings
         levels = {p.level_pct for _, plateaus in found for p in plateaus}
         if len(levels) < 2:
             what = 'air move' if part == 'air' else 'cut'
-            seconds = sum((getattr(seg, part)[1] - getattr(seg, part)[0]) * rec.block_period_s
-                          for rec, seg in zip(recordings, segments, strict=True)
-                          if getattr(seg, part))
             raise IdentifyError(
-                f'{names}: too short: the {what} ({seconds:.2f} s) holds {len(levels)} '
+                f'{names}: too short: the {what} ({_seconds(recordings, segments, part):.2f} s) '
+                f'holds {len(levels)} '
                 f'override level(s) for {s.min_plateau_s:g} s or more; two are needed')
     return segments
+
+
+def _seconds(recordings: Sequence[Recording], segments: Sequence[_Segments], part: str) -> float:
+    """How long the sessions' ``part`` (``air`` or ``cut``) segments last together [s]."""
+    return float(sum((getattr(g, part)[1] - getattr(g, part)[0]) * r.block_period_s
+                     for r, g in zip(recordings, segments, strict=True) if getattr(g, part)))
 
 
 # --- friction, process, noise ------------------------------------------------------------------
@@ -612,11 +594,7 @@ def _identify_friction(recordings: Sequence[Recording], segments: Sequence[_Segm
         raise IdentifyError(f'{names}: the air move holds no two positive feeds: the friction '
                             'curve (Park Eq. 25) needs two or more')
     v, i = v[inside], i[inside]
-    design = np.column_stack([(v - v_min) ** 2, np.ones_like(v)])
-    theta, *_ = np.linalg.lstsq(design, i, rcond=None)
-    residual = design @ theta - i
-    cov = np.linalg.inv(design.T @ design) * float(np.dot(residual, residual)) / max(
-        v.size - 2, 1) * _inflation(residual)
+    theta, residual, cov = _linear_fit(np.column_stack([(v - v_min) ** 2, np.ones_like(v)]), i)
     span2 = (v_max - v_min) ** 2
     at_max = float(theta[0] * span2 + theta[1])
     var_max = span2 * span2 * cov[0, 0] + cov[1, 1] + 2.0 * span2 * cov[0, 1]
@@ -739,15 +717,12 @@ def identify(recordings: Sequence[Recording],
     friction, friction_model = _identify_friction(recordings, segments, s)
     process, noise, _ = _identify_process(recordings, segments, friction_model, s)
 
-    def seconds(part: str) -> float:
-        return float(sum((getattr(g, part)[1] - getattr(g, part)[0]) * r.block_period_s
-                         for r, g in zip(recordings, segments, strict=True) if getattr(g, part)))
-
     return Identification(
         sessions=tuple(r.name for r in recordings), servo=servo, servo_candidates=candidates,
         friction=friction, friction_model=friction_model, process=process,
         force_noise_n=noise, spindle_speed_rpm=recordings[0].spindle_speed_rpm,
-        air_s=seconds('air'), cut_s=seconds('cut'))
+        air_s=_seconds(recordings, segments, 'air'),
+        cut_s=_seconds(recordings, segments, 'cut'))
 
 
 # --- the current-to-force map ------------------------------------------------------------------
@@ -807,11 +782,7 @@ def calibrate_map(recordings: Sequence[Recording],
             f'{names}: {force.size} blocks with a measured force spanning '
             f'{np.ptp(force) if force.size else 0.0:.0f} N: the map needs a cut, {min_blocks} '
             'blocks or more, over 50 N or more of force')
-    design = np.column_stack([np.ones_like(force), force])
-    theta, *_ = np.linalg.lstsq(design, current, rcond=None)
-    residual = design @ theta - current
-    cov = np.linalg.inv(design.T @ design) * float(np.dot(residual, residual)) / max(
-        force.size - 2, 1) * _inflation(residual)
+    theta, residual, cov = _linear_fit(np.column_stack([np.ones_like(force), force]), current)
     return MapCalibration(
         tuple(r.name for r in recordings),
         Estimate(float(theta[0]), math.sqrt(cov[0, 0]), 'A'),

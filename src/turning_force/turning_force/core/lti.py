@@ -1,15 +1,8 @@
 """Small linear-systems helpers, numpy only: what the plant, the estimator and the predictor
-need at set-up, and the scalar arithmetic their per-sample updates share with the compiled
-kernel (:mod:`turning_force.core.kernel`).
+need at set-up, once per object.
 
-Set-up (:func:`expm`, :func:`zoh`, :func:`lfiltic`, :func:`kalman_gain`) runs once per object;
-it replaces scipy's ``cont2discrete``, ``lfiltic``, ``expm`` and ``solve_discrete_are``, whose
+They replace scipy's ``cont2discrete``, ``lfiltic``, ``expm`` and ``solve_discrete_are``, whose
 imports (``scipy.signal`` alone 0.7-0.9 s) would otherwise land on every start-up.
-
-The scalar helpers (:func:`dot`, :func:`matvec`, :func:`solve`, :func:`div`) fix the order of
-every floating-point operation: numpy's ``@`` goes to BLAS, which picks fused multiply-adds and
-a summation order by CPU, so a matrix product is not the same number on every machine, nor the
-same as the kernel's. Written out, the reference and the kernel agree bit for bit.
 """
 
 from __future__ import annotations
@@ -21,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ['div', 'dot', 'expm', 'kalman_gain', 'lfiltic', 'matvec', 'solve', 'zoh']
+__all__ = ['expm', 'kalman_gain', 'lfiltic', 'zoh']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -109,52 +102,3 @@ def kalman_gain(dt_s: float, accel_noise: float, measurement_noise: float) -> tu
             break
         h = h_next
     return float(h[0, 0] / (h[0, 0] + r)), float(h[1, 0] / (h[0, 0] + r))
-
-
-def div(a: float, b: float) -> float:
-    """``a / b`` as IEEE 754 has it (and numpy, and the kernel): +-inf or NaN for ``b == 0``
-    where Python raises."""
-    if b != 0.0:
-        return a / b
-    if a != a or a == 0.0:
-        return math.nan
-    return math.copysign(math.inf, a) * math.copysign(1.0, b)
-
-
-def dot(a: Sequence[float], b: Sequence[float]) -> float:
-    """``sum(a[i] b[i])``, summed in index order."""
-    total = a[0] * b[0]
-    for i in range(1, len(a)):
-        total = total + a[i] * b[i]
-    return total
-
-
-def matvec(m: Sequence[Sequence[float]], x: Sequence[float]) -> list[float]:
-    """``m x``, each row by :func:`dot`."""
-    return [dot(row, x) for row in m]
-
-
-def solve(matrix: Sequence[Sequence[float]], rhs: Sequence[float]) -> list[float] | None:
-    """``matrix x = rhs`` by Gaussian elimination with partial pivoting; None where a pivot is
-    exactly zero (singular), as LAPACK's ``gesv`` reports it."""
-    n = len(rhs)
-    m = [[float(v) for v in row] + [float(rhs[i])] for i, row in enumerate(matrix)]
-    for col in range(n):
-        pivot = col
-        for row in range(col + 1, n):
-            if abs(m[row][col]) > abs(m[pivot][col]):
-                pivot = row
-        if m[pivot][col] == 0.0:
-            return None
-        m[col], m[pivot] = m[pivot], m[col]
-        for row in range(col + 1, n):
-            factor = m[row][col] / m[col][col]
-            for k in range(col, n + 1):
-                m[row][k] = m[row][k] - factor * m[col][k]
-    x = [0.0] * n
-    for row in range(n - 1, -1, -1):
-        total = m[row][n]
-        for k in range(row + 1, n):
-            total = total - m[row][k] * x[k]
-        x[row] = total / m[row][row]
-    return x

@@ -20,16 +20,8 @@ __all__ = ['METRIC_NAMES', 'MetricSettings', 'compute_metrics']
 
 FloatArray = npt.NDArray[np.float64]
 
-METRIC_NAMES = (
-    'mean_abs_error_n',
-    'steady_mean_abs_error_n',
-    'max_abs_error_n',
-    'overshoot_n',
-    'settling_time_s',
-    'ripple_p2p_n',
-    'override_changes_per_s',
-    'reachable_fraction',
-)
+METRIC_NAMES = ('mean_abs_error_n', 'steady_mean_abs_error_n', 'max_abs_error_n', 'overshoot_n',
+                'settling_time_s', 'ripple_p2p_n', 'override_changes_per_s', 'reachable_fraction')
 
 
 @dataclass(frozen=True)

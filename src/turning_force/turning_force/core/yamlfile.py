@@ -3,6 +3,7 @@ the file (experiment files, ``--params`` overlays, machine files, ``--set`` valu
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -11,7 +12,7 @@ from yaml.nodes import MappingNode
 
 from turning_force.core.errors import ConfigError
 
-__all__ = ['load_yaml', 'read_text', 'read_yaml_file', 'yaml_error_text']
+__all__ = ['load_yaml', 'read_text', 'read_yaml_file', 'yaml_error_text', 'yaml_text']
 
 
 # libyaml's parser where PyYAML was built with it (the wheels are): an experiment file in 2 ms
@@ -87,3 +88,18 @@ def read_yaml_file(path: Path, what: str = '') -> Any:
         return load_yaml(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f'{path}: not valid YAML: {yaml_error_text(exc)}') from exc
+
+
+def yaml_text(value: Any) -> str:
+    """A value as YAML that reads back to it: floats always with a point before the exponent
+    (YAML 1.1 reads ``1e-05`` as text), tuples and lists in flow style, a word as it is and
+    any other text quoted."""
+    if isinstance(value, tuple):
+        value = list(value)
+    if isinstance(value, float) and math.isfinite(value):
+        mantissa, e, exponent = repr(value).partition('e')
+        return f'{mantissa}.0e{exponent}' if e and '.' not in mantissa else repr(value)
+    if isinstance(value, str) and load_yaml(value) == value:
+        return value
+    dumped: str = yaml.safe_dump(value, default_flow_style=True, width=2**30)
+    return dumped.removesuffix('\n').removesuffix('\n...')

@@ -1,20 +1,13 @@
 """The PMC over Modbus/TCP: override bits to a digital I/O module, read back, faults named.
 
-A retrofit module (WAGO 750-352, Advantech ADAM-6050, Moxa ioLogik E1212 class) drives the
-PMC's spare X inputs that the ladder maps to the override signals. Each control period
-:meth:`ModbusPmc.write` sends the bits of one level in ONE write-coils request, reads them back
-(the coils, or the module's output image), reads the machine's inputs and writes changed
-outputs. What it returns is what the PMC really sees. A refused request (an exception
-response), no answer within the timeout (default one control period), a read-back that differs
-from what was written, or a lost connection is a fault: the connection is dropped, and
-:meth:`ModbusPmc.connect` may be tried again once the back-off has passed (doubling from
-``reconnect_min_s`` to ``reconnect_max_s``).
-
-It never sends a pattern that is not a level of the table: :meth:`ModbusPmc.write` refuses
-bits that are not the encoding of a level before anything goes out, and the bits go in one
-request, so the PMC never sees half of a change. A lost connection cannot be written through:
-the module's own fieldbus watchdog must drop its outputs to the ``fail_safe_pct`` pattern
-(README, "On the lathe").
+Each control period :meth:`ModbusPmc.write` sends the bits of one level in ONE write-coils
+request (never a pattern that is not a level of the table), reads them back (the coils, or the
+module's output image), reads the machine's inputs and writes changed outputs: what it returns
+is what the PMC really sees. A refused request, no answer within the timeout (default one
+control period), a wrong read-back or a lost connection is a fault: the connection is dropped,
+and :meth:`ModbusPmc.connect` may be tried again once the back-off (``reconnect_min_s``
+doubling to ``reconnect_max_s``) has passed. A lost connection cannot be written through: the
+module's own watchdog must fall back to ``fail_safe_pct`` (docs/machine-pc.md).
 
 Session-free (no rclpy): the bridge node, ``pmc-check`` and the tests use it alike.
 """
@@ -32,16 +25,10 @@ from pymodbus.exceptions import ModbusException
 
 from turning_force.core.errors import TurningForceError
 from turning_force.core.pmc.machine import Machine, ModbusTcp
+from turning_force.core.pmc.shopfloor import InputValues
 
-__all__ = [
-    'CoilReader',
-    'InputValues',
-    'IoResult',
-    'ModbusPmc',
-    'PmcIoError',
-    'pattern_text',
-    'quiet_pymodbus',
-]
+__all__ = ['CoilReader', 'InputValues', 'IoResult', 'ModbusPmc', 'PmcIoError', 'pattern_text',
+           'quiet_pymodbus']
 
 EXCEPTION_NAMES = {1: 'illegal function', 2: 'illegal data address', 3: 'illegal data value',
                    4: 'device failure', 5: 'acknowledge', 6: 'device busy',
@@ -55,15 +42,6 @@ class PmcIoError(TurningForceError):
 
 class _Fault(Exception):
     """One failed exchange; the text says which request and why."""
-
-
-@dataclass(frozen=True)
-class InputValues:
-    """The machine's inputs as last read; ``None`` where the machine file wires none."""
-
-    program_enable: bool | None = None
-    threading: bool | None = None
-    operator_dial_pct: float | None = None
 
 
 @dataclass(frozen=True)

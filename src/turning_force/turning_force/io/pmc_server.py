@@ -35,11 +35,12 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.simulator.simutils import SimUtils
 
 from turning_force.core.errors import ConfigError, TurningForceError
+from turning_force.core.experiment import Experiment
 from turning_force.core.pmc.machine import Machine, load_machine
 from turning_force.io.modbus_pmc import quiet_pymodbus
 
 __all__ = ['PmcSimulation', 'ServerError', 'SimulatedPmcServer', 'Write', 'main',
-           'simulate_pmc']
+           'simulate_pmc', 'simulated_parameters']
 
 COILS = 1024           # 0x0000-0x03FF: room for a WAGO output image at 0x0200
 DISCRETE_INPUTS = 64
@@ -61,14 +62,6 @@ class Write:
     t_s: float = field(default=0.0, compare=False)
 
 
-@dataclass
-class _Faults:
-    latency_s: float = 0.0
-    refuse_writes: bool = False
-    stuck_coils: dict[int, bool] = field(default_factory=dict)
-    writes: list[Write] = field(default_factory=list)
-
-
 class SimulatedPmcServer:
     """pymodbus's Modbus/TCP server in a thread of its own, with an event loop of its own.
 
@@ -85,44 +78,22 @@ class SimulatedPmcServer:
             m = machine.modbus
             if m.readback_first != m.first_coil:
                 self._mirror = (m.first_coil, len(m.override_coils), m.readback_first)
-        self._faults = _Faults()
+        # Faults, for tests: answer late, refuse writes, coils that keep a value whatever is
+        # written (a welded relay, a blown output).
+        self.latency_s = 0.0
+        self.refuse_writes = False
+        self.stuck_coils: dict[int, bool] = {}
+        self._writes: list[Write] = []
         self._loop: asyncio.AbstractEventLoop | None = None
         self._server: Any = None   # the ModbusTcpServer, while it runs
         self._thread: threading.Thread | None = None
         self._device: SimDevice | None = None
         quiet_pymodbus()
 
-    # --- fault injection, for tests -----------------------------------------------------------
-
-    @property
-    def latency_s(self) -> float:
-        return self._faults.latency_s
-
-    @latency_s.setter
-    def latency_s(self, value: float) -> None:
-        self._faults.latency_s = value
-
-    @property
-    def refuse_writes(self) -> bool:
-        return self._faults.refuse_writes
-
-    @refuse_writes.setter
-    def refuse_writes(self, value: bool) -> None:
-        self._faults.refuse_writes = value
-
-    @property
-    def stuck_coils(self) -> dict[int, bool]:
-        """Coils that keep a value whatever is written (a welded relay, a blown output)."""
-        return self._faults.stuck_coils
-
-    @stuck_coils.setter
-    def stuck_coils(self, value: dict[int, bool]) -> None:
-        self._faults.stuck_coils = dict(value)
-
     @property
     def writes(self) -> list[Write]:
         """Every coil write received, in order (refused ones included)."""
-        return list(self._faults.writes)
+        return list(self._writes)
 
     # --- running ------------------------------------------------------------------------------
 
@@ -191,16 +162,15 @@ class SimulatedPmcServer:
     async def _action(self, function_code: int, start_address: int, address: int,
                       count: int, registers: list[int],
                       values: list[int] | list[bool] | None) -> ExcCodes | None:
-        faults = self._faults
-        if faults.latency_s > 0:
-            await asyncio.sleep(faults.latency_s)
+        if self.latency_s > 0:
+            await asyncio.sleep(self.latency_s)
         if values is not None and function_code in WRITE_CODES:
-            faults.writes.append(Write(address, tuple(bool(v) for v in values),
-                                       time.perf_counter()))
-            if faults.refuse_writes:
+            self._writes.append(Write(address, tuple(bool(v) for v in values),
+                                      time.perf_counter()))
+            if self.refuse_writes:
                 return ExcCodes.DEVICE_FAILURE
             for k in range(len(values)):   # the action may change what is stored
-                stuck = faults.stuck_coils.get(address + k)
+                stuck = self.stuck_coils.get(address + k)
                 if stuck is not None:
                     values[k] = stuck
         if function_code == 1 and self._mirror is not None:
@@ -282,6 +252,17 @@ def simulate_pmc(machine_file: str, backend: str, override_table: str) -> PmcSim
         return PmcSimulation('simulated', machine_file)
     return PmcSimulation('modbus_tcp', machine_file,
                          SimulatedPmcServer(machine, modbus.host, modbus.port))
+
+
+def simulated_parameters(experiment: Experiment) -> tuple[dict[str, dict[str, Any]],
+                                                          PmcSimulation]:
+    """A simulated run's resolved parameters, the bridge's PMC laid in (:func:`simulate_pmc`),
+    and that PMC."""
+    bridge = experiment.bridge
+    pmc = simulate_pmc(bridge.machine_file, bridge.backend, bridge.override_table)
+    resolved = experiment.resolved_params()
+    resolved['pmc_bridge'].update(pmc.parameters)
+    return resolved, pmc
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -9,6 +9,7 @@ overwrite it.
 from __future__ import annotations
 
 import array
+import dataclasses
 import math
 
 import numpy as np
@@ -22,23 +23,10 @@ from turning_force.core.estimation.settings import EstimateStatus, ForceEstimate
 from turning_force.core.plant.drive import CurrentBlock
 from turning_force.core.pmc.shopfloor import CutRecord, InputValues
 
-__all__ = [
-    'block_to_servo_currents',
-    'cut_to_msg',
-    'estimate_from_msg',
-    'estimate_to_msg',
-    'from_tristate',
-    'inputs_from_msg',
-    'inputs_to_msg',
-    'last_sample_ns',
-    'ns_to_stamp',
-    'seconds_to_stamp',
-    'servo_currents_to_block',
-    'set_stamp',
-    'stamp_to_ns',
-    'stamp_to_seconds',
-    'tristate',
-]
+__all__ = ['block_to_servo_currents', 'cut_to_msg', 'estimate_from_msg', 'estimate_to_msg',
+           'from_tristate', 'inputs_from_msg', 'inputs_to_msg', 'last_sample_ns', 'ns_to_stamp',
+           'seconds_to_stamp', 'servo_currents_to_block', 'set_stamp', 'stamp_to_ns',
+           'stamp_to_seconds', 'tristate']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -150,12 +138,6 @@ def inputs_from_msg(msg: MachineInputs) -> InputValues:
 
 
 def cut_to_msg(record: CutRecord) -> CutRecordMsg:
-    msg = CutRecordMsg(
-        index=record.index, tool=record.tool, start_s=record.start_s, end_s=record.end_s,
-        duration_s=record.duration_s, programmed_feed_s=record.programmed_feed_s,
-        max_force_n=record.max_force_n, mean_force_n=record.mean_force_n,
-        min_override_pct=record.min_override_pct, overload_events=record.overload_events,
-        breakage=record.breakage, reachable_fraction=record.reachable_fraction,
-        learned=record.learned, complete=record.complete)
+    msg = CutRecordMsg(**dataclasses.asdict(record), duration_s=record.duration_s)
     msg.header.stamp = seconds_to_stamp(record.end_s)
     return msg

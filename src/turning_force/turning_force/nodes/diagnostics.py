@@ -92,10 +92,16 @@ class Diagnostics:
             entry.total = entry.count
             entry.last_s = now
 
-    def warn(self, text: str) -> None:
+    def warn(self, text: str, log: bool = False) -> None:
+        """A warning for the next report (``log``: in the node's log too)."""
+        if log:
+            self._node.get_logger().warning(text)
         self._warnings.append(text)
 
-    def error(self, text: str) -> None:
+    def error(self, text: str, log: bool = False) -> None:
+        """An error for the next report (``log``: in the node's log too)."""
+        if log:
+            self._node.get_logger().error(text)
         self._errors += 1
         self._error_texts.append(text)
 

@@ -61,8 +61,7 @@ class ForceControllerNode(Node):
         result = self.set_parameters([Parameter('reference_force_n', value=float(value))])[0]
         if not result.successful:
             text = f'force/reference: {value!r} N rejected: {result.reason}'
-            self.get_logger().error(text)
-            self.diagnostics.error(text)
+            self.diagnostics.error(text, log=True)
 
     def _on_estimate(self, msg: ForceEstimate) -> None:
         self.diagnostics.received('force/estimate')
@@ -86,8 +85,7 @@ class ForceControllerNode(Node):
             if not out.reachable:
                 text = (f'reference {command.reference_force_n:g} N cannot be reached: the feed '
                         f'sits at {out.override_pct:g} % with the force {out.error_n:+.0f} N off')
-                self.get_logger().warning(text)
-                self.diagnostics.warn(text)
+                self.diagnostics.warn(text, log=True)
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -45,7 +45,7 @@ class ForceEstimatorNode(Node):
         kernel.load()   # the compiled code, before the first block (compiled on a cold cache)
         self.parameters = SettingsParameters(self, EstimatorSettings, self._reconfigure)
         self.diagnostics = Diagnostics(self)
-        self._estimator = self._make_estimator(self.parameters.current)
+        self._estimator = ForceEstimator(self.parameters.current)
         self._publisher = self.create_publisher(ForceEstimate, 'force/estimate', 10)
         self._out = ForceEstimate()   # refilled per block (rclpy serialises on publish)
         self.create_subscription(ServoCurrents, 'servo/currents', self._on_currents, 10)
@@ -53,12 +53,8 @@ class ForceEstimatorNode(Node):
         self._logged_scale = 1.0
         self.create_timer(STALE_CHECK_S, timer_callback(self._check_stale))
 
-    def _make_estimator(self, settings: EstimatorSettings) -> ForceEstimator:
-        """The estimator (compiled: its code is loaded here, before the first block)."""
-        return ForceEstimator(settings)
-
     def _reconfigure(self, settings: EstimatorSettings) -> None:
-        self._estimator = self._make_estimator(settings)
+        self._estimator = ForceEstimator(settings)
 
     def _check_stale(self) -> None:
         if self._watching and self.diagnostics.stale('servo/currents'):

@@ -1,16 +1,12 @@
 """The graph in one process, real time, wall clock, all nodes reading the ``--params-file``:
+``turning_force_graph`` (simulator, estimator, controller, PMC bridge and recorder, for a desk)
+and ``turning_force_machine`` (the same without the simulator, for the machine PC, where the DAQ
+driver publishes ``servo/currents``).
 
-- ``ros2 run turning_force turning_force_graph``: simulator, estimator, controller, PMC bridge
-  and recorder, for a desk.
-- ``ros2 run turning_force turning_force_machine``: the same without the simulator, for the
-  machine PC, where the DAQ driver publishes ``servo/currents``.
-
-Both drive ``pmc_bridge``'s lifecycle: it is configured (machine file loaded, module connected)
-and activated once the graph exists, and deactivated (the feed handed back) and cleaned up
-(the module released) when the process stops. On a desk, a machine file whose module is on
-127.0.0.1 is served by a simulated PMC on Modbus/TCP for the graph's lifetime.
-
-(``turning-force run`` composes the nodes in lock-step instead: :mod:`turning_force.commands.run`.)
+Both configure and activate ``pmc_bridge`` once the graph exists, and deactivate and clean it up
+when the process stops. On a desk, a machine file whose module is on 127.0.0.1 is served by a
+simulated PMC on Modbus/TCP for the graph's lifetime. (``turning-force run`` composes the nodes
+in lock-step instead: :mod:`turning_force.commands.run`.)
 """
 
 from __future__ import annotations

@@ -2,30 +2,21 @@
 
 Subscribes ``pmc/feed_override`` (turning_force_msgs/FeedOverride): the PMC bits are decoded with
 the override table, as the CNC would read them. Publishes, once per control period,
-``servo/currents`` (a block of DAQ samples), ``servo/joint_state`` (sensor_msgs/JointState of
-the feed axis ``z``: position [m], velocity [m/s], effort = true cutting force [N]),
-``sim/cutting_state`` (ground truth) and ``machine/inputs`` (turning_force_msgs/MachineInputs:
-the simulated machine's program enable, threading and operator dial, from the parameters,
-published before the block's currents so that the bridge has them when it answers); with
-``dynamometer`` also ``force/measured`` (geometry_msgs/WrenchStamped, ``wrench.force.z`` [N]: a
-table dynamometer's reading of each block, for ``turning-force calibrate --map``); with
-``publish_clock`` it owns ``/clock`` and advances it one control period per step (lock-step
-simulation). Parameters:
-:class:`turning_force.core.plant.settings.PlantSettings`, and two it shares with ``pmc_bridge``:
-``machine_file`` and ``backend``. With ``backend: modbus_tcp`` the override is not taken from
-the topic but read, each step, from the coils of the Modbus/TCP server that stands in for the
-PMC's input image, and decoded with the machine file, as the PMC would: the loop closes
-through the real protocol.
+``machine/inputs`` (the simulated program enable, threading and dial, before the block's
+currents so that the bridge has them when it answers), ``servo/currents`` (a block of DAQ
+samples), ``servo/joint_state`` (feed axis ``z``: position [m], velocity [m/s], effort = true
+cutting force [N]) and ``sim/cutting_state`` (ground truth); with ``dynamometer`` also
+``force/measured`` (geometry_msgs/WrenchStamped, ``wrench.force.z`` [N], for ``turning-force
+calibrate --map``); with ``publish_clock`` it owns ``/clock`` and advances it one control period
+per step (lock-step). Parameters: :class:`turning_force.core.plant.settings.PlantSettings`, and
+``machine_file`` and ``backend``, shared with ``pmc_bridge``: with ``backend: modbus_tcp`` the
+override is read each step from the coils of the simulated PMC's Modbus/TCP server, as the PMC
+would: the loop closes through the real protocol.
 
-On the wall clock (not lock-step) it measures, per block, the time from the block's currents
-going out to the ``pmc/feed_override`` answering it (stamped as the block) coming back: both
-ends are seen here, on one monotonic clock, so the figure is the whole loop as the PMC would
-see it (DDS both ways, estimator, controller, bridge, and whatever shares their executors).
-``/diagnostics`` carries it over the last ``latency_window_s``: ``answer_latency_p50_ms``,
-``answer_latency_p99_ms``, ``answer_latency_max_ms``, ``answered_blocks``, ``missed_periods``
-(blocks whose answer had not come when the next block went out) and ``missed_periods_total``
-since the first answer (:class:`turning_force.nodes.diagnostics.AnswerLatency`); the status is
-WARN while the window holds a missed period.
+On the wall clock it measures, per block, the time from the block's currents going out to the
+override answering it coming back (the whole loop as the PMC would see it), and reports it on
+``/diagnostics`` over ``latency_window_s`` (:class:`turning_force.nodes.diagnostics.AnswerLatency`:
+``LATENCY_KEYS``); the status is WARN while the window holds a missed period.
 """
 
 from __future__ import annotations
@@ -52,6 +43,7 @@ from turning_force.core.pmc.overrides import get_table
 from turning_force.nodes.convert import (
     block_to_servo_currents,
     inputs_to_msg,
+    last_sample_ns,
     set_stamp,
     stamp_to_ns,
 )
@@ -125,7 +117,7 @@ class LatheSimNode(Node):
                           if settings.dynamometer else None)
         self.create_subscription(FeedOverride, 'pmc/feed_override', self._on_override, 10)
         if not lockstep:
-            self.create_timer(settings.control_period_s, timer_callback(self._tick))
+            self.create_timer(settings.control_period_s, timer_callback(self.step))
 
     def _coil_reader(self, override_table: str) -> Any:
         """The PMC's input image on Modbus/TCP, when ``backend`` is ``modbus_tcp``."""
@@ -196,9 +188,6 @@ class LatheSimNode(Node):
         self._awaited = (self._last_ns, future)
         return future
 
-    def _tick(self) -> None:
-        self.step()
-
     def step(self) -> PlantBlock:
         """Advance one control period at the applied override and publish what it gives.
 
@@ -215,12 +204,9 @@ class LatheSimNode(Node):
         message = block_to_servo_currents(currents, self.FRAME, self._currents_msg)
         first_ns = self._t0_ns + round(currents.t0_s * 1e9)
         set_stamp(message.header.stamp, first_ns)
-        period_ns = round(currents.sample_period_s * 1e9)
-        # The last sample's time: the stamp of everything that answers the block (as
-        # convert.last_sample_ns computes it from the message).
-        last_ns = first_ns + round((len(currents) - 1) * float(currents.sample_period_s) * 1e9)
+        last_ns = last_sample_ns(message)   # the stamp of everything that answers the block
         if self._clock_publisher is not None:  # the block is complete one sample later
-            set_stamp(self._clock_msg.clock, last_ns + period_ns)
+            set_stamp(self._clock_msg.clock, last_ns + round(currents.sample_period_s * 1e9))
             self._clock_publisher.publish(self._clock_msg)
         inputs = inputs_to_msg(block.inputs, self._inputs_msg)   # before the currents: the
         set_stamp(inputs.header.stamp, last_ns)   # bridge's answer to this block must see them

@@ -1,41 +1,21 @@
 """``pmc_bridge``: what reaches the CNC's PMC, safe first. A lifecycle (managed) node.
 
-Subscribes ``control/feed_command`` (turning_force_msgs/FeedCommand) and ``force/estimate``
-(turning_force_msgs/ForceEstimate); publishes ``pmc/feed_override``
-(turning_force_msgs/FeedOverride) and writes the PMC backend. The decisions (disarmed,
-watchdog, invalid command, overload hold) are :class:`turning_force.core.pmc.gate.OverrideGate`'s;
-parameters: :class:`turning_force.core.pmc.settings.BridgeSettings`, and ``autostart``.
+Subscribes ``control/feed_command`` (turning_force_msgs/FeedCommand), ``force/estimate``
+(turning_force_msgs/ForceEstimate) and ``machine/inputs``; publishes ``pmc/feed_override``
+(turning_force_msgs/FeedOverride), ``pmc/cuts`` (turning_force_msgs/CutRecord) and, with
+``teach_file``, ``force/reference`` (std_msgs/Float64, transient-local); writes the PMC backend.
+Parameters: :class:`turning_force.core.pmc.settings.BridgeSettings`, and ``autostart`` (configure
+and activate at start). The decisions (disarmed, watchdog, invalid command, overload hold, the
+shop-floor behaviours) are :class:`turning_force.core.pmc.gate.OverrideGate`'s.
 
-Lifecycle, the ROS 2 convention for hardware drivers (``~/change_state``, ``~/get_state``, as
-``ros2 lifecycle set`` drives them):
-
-- configure: load ``machine_file`` (its table must be ``override_table``), open the backend
-  (``modbus_tcp``: connect to the module) and write the programmed feed;
-- activate: the gate runs and may arm (``armed`` parameter or ``~/arm``, std_srvs/Trigger);
-- deactivate: hand the feed back (the operator's dial where the machine file wires one, else
-  100 %) and hold it, whatever the controller asks;
-- cleanup, shutdown: hand the feed back and release the module.
-
-``autostart`` (default true) configures and activates at start, as the bridge always did;
-``turning-force run`` and ``turning_force_machine`` drive the transitions themselves.
-
-With ``backend: modbus_tcp`` every period's override goes to the module in one request and is
-read back (:class:`turning_force.io.modbus_pmc.ModbusPmc`); a refused request, a late answer, a
-wrong read-back or a lost connection is an I/O fault: the bridge disarms (it re-arms only when
-told), says why in ``FeedOverride`` (``REASON_IO_FAULT``) and ``/diagnostics``, and reconnects
-with back-off. The machine's inputs (program enable, threading, operator dial) are read each
-period into :attr:`PmcBridgeNode.inputs`; :meth:`PmcBridgeNode.set_output` sets its outputs.
-
-The shop-floor behaviours (:mod:`turning_force.core.pmc.shopfloor`: program enable, threading,
-operator dial, rise limit, feed floor, air cut, overload reactions, tool breakage, teach-in, cut
-log) are the gate's. Their inputs come from the module where the machine file wires them, else
-from ``machine/inputs`` (turning_force_msgs/MachineInputs: ``lathe_sim`` in simulation); every
-``FeedOverride`` records the inputs its decision saw, so that replay decides alike. The gate's
-alarm and stop/retract request go to the module's ``alarm`` and ``stop_request`` outputs where
-wired. Each finished cut goes out on ``pmc/cuts`` (turning_force_msgs/CutRecord), the one still
-open when the bridge is deactivated marked incomplete. With ``teach_file``, configuring
-publishes the tool's taught reference on ``force/reference`` (std_msgs/Float64,
-transient-local); a learning cut writes the file and publishes the reference it sets.
+Lifecycle (docs/machine-pc.md): configure loads ``machine_file`` and opens the backend;
+activate lets the gate run and arm (``armed`` or ``~/arm``); deactivate, cleanup and shutdown
+hand the feed back (the operator's dial where wired, else 100 %). With ``backend: modbus_tcp``
+each override goes to the module in one request and is read back
+(:class:`turning_force.io.modbus_pmc.ModbusPmc`); an I/O fault disarms the bridge, says why
+(``REASON_IO_FAULT``, ``/diagnostics``) and reconnects with back-off. The machine's inputs come
+from the module where the machine file wires them, else from ``machine/inputs``; every
+``FeedOverride`` records the inputs its decision saw, so that replay decides alike.
 """
 
 from __future__ import annotations
@@ -60,18 +40,12 @@ from turning_force_msgs.msg import (
 
 from turning_force.core import kernel
 from turning_force.core.errors import ConfigError, TurningForceError
-from turning_force.core.kernel.chain import command_for_would_act
+from turning_force.core.kernel.chain import check_taught_reference, command_for_would_act
 from turning_force.core.pmc.gate import OverrideGate
 from turning_force.core.pmc.machine import Machine, load_machine
 from turning_force.core.pmc.overrides import OverrideTable
 from turning_force.core.pmc.settings import BridgeSettings, Decision, Reason
-from turning_force.core.pmc.shopfloor import (
-    NO_INPUTS,
-    InputValues,
-    Learned,
-    save_teach_file,
-    taught_reference,
-)
+from turning_force.core.pmc.shopfloor import NO_INPUTS, Learned, save_teach_file, taught_reference
 from turning_force.nodes.convert import (
     cut_to_msg,
     estimate_from_msg,
@@ -193,8 +167,7 @@ class PmcBridgeNode(LifecycleNode):
             self._configure()
         except TurningForceError as exc:
             self.configure_error = str(exc)
-            self.get_logger().error(self.configure_error)
-            self.diagnostics.error(self.configure_error)
+            self.diagnostics.error(self.configure_error, log=True)
             self._release()
             return TransitionCallbackReturn.FAILURE
         self.configure_error = ''
@@ -279,13 +252,9 @@ class PmcBridgeNode(LifecycleNode):
         if reference is None:
             text = (f'{settings.teach_file}: tool {settings.tool} not taught: the controller '
                     'keeps its reference_force_n')
-            self.get_logger().warning(text)
-            self.diagnostics.warn(text)
+            self.diagnostics.warn(text, log=True)
             return
-        if not reference < settings.overload_force_n:
-            raise ConfigError(f'{settings.teach_file}: tools.{settings.tool}.reference_force_n '
-                              f'= {reference!r}: not below pmc_bridge.overload_force_n '
-                              f'({settings.overload_force_n:g} N)')
+        check_taught_reference(reference, settings)
         self._reference_publisher.publish(Float64(data=reference))
         self.get_logger().info(f'{settings.tool}: taught reference {reference:g} N from '
                                f'{settings.teach_file}')
@@ -338,15 +307,13 @@ class PmcBridgeNode(LifecycleNode):
         settings = self.parameters.current
         if learned.refused:
             text = f'teach-in for {learned.tool}: not learned: {learned.refused}'
-            self.get_logger().warning(text)
-            self.diagnostics.warn(text)
+            self.diagnostics.warn(text, log=True)
             return
         taught = learned.taught
         try:
             save_teach_file(settings.teach_file, learned.tool, taught)
         except ConfigError as exc:   # the reference is still set for this session
-            self.get_logger().error(str(exc))
-            self.diagnostics.error(str(exc))
+            self.diagnostics.error(str(exc), log=True)
         # Published before the override that answers this block: the controller has it for the
         # next block, as the core loop's chain retunes its controller after this one.
         self._reference_publisher.publish(Float64(data=taught.reference_force_n))
@@ -492,8 +459,7 @@ class PmcBridgeNode(LifecycleNode):
         self.diagnostics.published('pmc/feed_override')
         if written.reason != self._last_reason:
             if written.reason not in QUIET_REASONS:
-                self.get_logger().warning(f'{written.reason.name}: {written.detail}')
-                self.diagnostics.warn(f'{written.reason.name}: {written.detail}')
+                self.diagnostics.warn(f'{written.reason.name}: {written.detail}', log=True)
             self._last_reason = written.reason
         self.diagnostics.set_value('reason', written.reason.name)
         self.diagnostics.set_value('applied_pct', written.applied_pct)
@@ -512,8 +478,7 @@ class PmcBridgeNode(LifecycleNode):
                 return self._fault(decision, fault)
         result = backend.write(decision.code, decision.bits)
         self.inputs = result.inputs
-        self._module_inputs = InputValues(result.inputs.program_enable, result.inputs.threading,
-                                          result.inputs.operator_dial_pct)
+        self._module_inputs = result.inputs
         self._take_inputs()   # for the next decision: these were read after this one
         self._report_inputs()
         if not result.ok:
@@ -529,8 +494,7 @@ class PmcBridgeNode(LifecycleNode):
 
     def _fault(self, decision: Decision, fault: str) -> Decision:
         if not self.io_fault:
-            self.get_logger().error(f'IO_FAULT: {fault}')
-            self.diagnostics.error(f'IO_FAULT: {fault}')
+            self.diagnostics.error(f'IO_FAULT: {fault}', log=True)
             self.diagnostics.set_value('io', f'fault: {fault}')
             if self.parameters.current.armed:
                 self._set_parameter('armed', False)   # re-armed only when told

@@ -1,17 +1,14 @@
 """``servo_daq``: the feed drive's currents from an NI-DAQ, published as ``servo/currents``.
 
-On the machine PC, the DAQ stands where ``lathe_sim`` stands on a desk. Two analog inputs take the
-u and v phase currents from Hall-effect sensors (Park 1998, Sec. 3), and a counter takes the motor
-encoder's A/B quadrature (or a third analog input an angle output of the drive), all on one
-hardware sample clock: the counter is clocked by the analog task's sample clock, so sample ``k`` of
-every channel is the same instant. Blocks of ``samples_per_block`` samples are read in a thread of
-their own and published as turning_force_msgs/ServoCurrents, stamped with the time of their first
-sample (the task's start plus the sample count over the rate: the hardware's clock, not the
-read's). The arithmetic is :class:`turning_force.core.plant.daq.DaqConverter`; parameters:
-:class:`turning_force.core.plant.daq.DaqSettings`.
-
-Through NI's official ``nidaqmx`` package (``pip install 'turning_force[daq]'``) and NI's
-NI-DAQmx driver. Where either is missing the node stops at start with one line saying which.
+On the machine PC the DAQ stands where ``lathe_sim`` stands on a desk: two analog inputs take
+the u and v phase currents from Hall-effect sensors (Park 1998, Sec. 3), and a counter the motor
+encoder (or a third analog input an angle output of the drive), all on one hardware sample
+clock. Blocks of ``samples_per_block`` samples are read in a thread of their own and published
+as turning_force_msgs/ServoCurrents, stamped with the time of their first sample by the
+hardware's clock. The arithmetic is :class:`turning_force.core.plant.daq.DaqConverter`; parameters:
+:class:`turning_force.core.plant.daq.DaqSettings`. Through NI's ``nidaqmx`` package (``pip install
+'turning_force[daq]'``) and NI-DAQmx driver; where either is missing the node stops at start
+with one line saying which.
 """
 
 from __future__ import annotations
@@ -164,8 +161,7 @@ class ServoDaqNode(Node):
             try:
                 u, v, angle = daq.read()
             except DaqError as exc:
-                self.get_logger().error(str(exc))
-                self.diagnostics.error(str(exc))
+                self.diagnostics.error(str(exc), log=True)
                 return
             t0_ns = self._t0_ns + round(self._samples * 1e9 / s.sample_rate_hz)
             self._samples += len(u)

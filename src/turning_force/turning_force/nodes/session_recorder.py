@@ -1,25 +1,16 @@
 """``session_recorder``: every topic of the graph into a rosbag2 MCAP session.
 
-Subscribes, without deserialising, to every topic of the graph (``servo/currents``,
-``servo/joint_state``, ``sim/cutting_state``, ``force/estimate``, ``force/reference``,
-``control/feed_command``, ``pmc/feed_override``, ``machine/inputs``, ``pmc/cuts``,
-``/diagnostics``, and a dynamometer's ``force/measured`` where one is fitted for calibration)
-and writes them to
-``output_dir`` as they come, stamped with this node's clock at receipt (sim time in lock-step:
-read once per step of ``/clock``, not per message; else the system clock, which the ROS clock
-is without sim time: :class:`turning_force.nodes.spin.NodeTime`). A writer thread does the
-disk work (the MCAP records, the zstd chunk, the flush with fsync), so that the executor that
-runs the recorder (with the control graph, in one process) never waits for the disk
-(``background=False`` writes on the executor's thread, as it once did, for comparison). Embeds
-the experiment file (``experiment_file``), the software versions, and the resolved parameters:
-its owner passes them (:meth:`SessionRecorderNode.add_custom_data`, as ``turning-force run`` does),
-or with ``capture_parameters`` it asks the graph's nodes for theirs over their parameter
-services, as on the machine PC. A killed recorder loses at most ``flush_period_s`` of data, and
-leaves ``metadata.yaml`` as written at the start (topics, experiment file, versions; rewritten
-when parameters are added), which ``turning-force repair`` completes. A write that fails (the
-disk is full) stops the recording with one error, logged, on ``/diagnostics`` and in
-:attr:`SessionRecorderNode.failure` (which ``turning-force run`` raises); the graph goes on, and
-what was written before stays readable.
+Subscribes, without deserialising, to every topic of the graph (:data:`GRAPH_TOPICS`) and
+writes them to ``output_dir`` as they come, stamped with this node's clock at receipt
+(:class:`turning_force.nodes.spin.NodeTime`). A writer thread does the disk work, so that the
+executor that runs the recorder with the control graph never waits for the disk
+(``background=False`` writes on the executor's thread, for comparison). Embeds the experiment
+file (``experiment_file``), the software versions and the resolved parameters: its owner
+passes them (:meth:`SessionRecorderNode.add_custom_data`), or with ``capture_parameters`` it
+asks the graph's nodes over their parameter services. A killed recorder loses at most
+``flush_period_s`` of data (``turning-force repair`` completes the session). A write that fails
+stops the recording with one error, logged, on ``/diagnostics`` and in
+:attr:`SessionRecorderNode.failure`; the graph goes on.
 """
 
 from __future__ import annotations
@@ -191,8 +182,7 @@ class SessionRecorderNode(Node):
         machine PC) goes on regulating, without a recording."""
         self._closed = True
         self.failure = exc
-        self.get_logger().error(str(exc))
-        self.diagnostics.error(str(exc))
+        self.diagnostics.error(str(exc), log=True)
         self.create_timer(1.0, lambda: self.diagnostics.error(str(exc)))
 
     def add_custom_data(self, key: str, value: str) -> None:

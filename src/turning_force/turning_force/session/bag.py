@@ -52,17 +52,8 @@ from rosbags.typesys.store import Typestore
 
 from turning_force.core.errors import ConfigError, TurningForceError
 
-__all__ = [
-    'CUSTOM_EXPERIMENT',
-    'CUSTOM_PARAMETERS',
-    'CUSTOM_RECORDING',
-    'CUSTOM_REPAIR',
-    'CUSTOM_VERSIONS',
-    'BagError',
-    'SessionWriter',
-    'software_versions',
-    'typestore',
-]
+__all__ = ['CUSTOM_EXPERIMENT', 'CUSTOM_PARAMETERS', 'CUSTOM_RECORDING', 'CUSTOM_REPAIR',
+           'CUSTOM_VERSIONS', 'BagError', 'SessionWriter', 'software_versions', 'typestore']
 
 CUSTOM_EXPERIMENT = 'turning_force.experiment_yaml'
 CUSTOM_PARAMETERS = 'turning_force.parameters_json'

@@ -32,14 +32,7 @@ class Calibration:
 
     def estimator_parameters(self) -> dict[str, float]:
         """The ``force_estimator`` parameters that hold this curve."""
-        m = self.model
-        span = m.max_feed_mm_min - m.min_feed_mm_min
-        return {
-            'friction_min_feed_mm_min': m.min_feed_mm_min,
-            'friction_max_feed_mm_min': m.max_feed_mm_min,
-            'friction_at_min_feed_a': m.b_a,
-            'friction_at_max_feed_a': m.a_a_per_mm_min2 * span**2 + m.b_a,
-        }
+        return self.model.parameters()
 
     def residual_a(self) -> float:
         """Largest distance of a measured point from the fitted curve [A]."""

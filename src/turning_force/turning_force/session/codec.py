@@ -41,17 +41,16 @@ from rosbags.serde import SerdeError
 from rosbags.typesys.store import Typestore
 
 __all__ = ['DECODE_ERRORS', 'Field', 'Table', 'TableBuilder', 'decode', 'encode', 'fields',
-           'supports']
+           'ranges', 'supports']
 
 # What rosbags' generated CDR deserialisers raise on damaged bytes.
 DECODE_ERRORS = (SerdeError, ValueError, IndexError, KeyError, TypeError, struct.error,
                  OverflowError, MemoryError, UnicodeDecodeError)
 
-SIZES = {'bool': 1, 'byte': 1, 'char': 1, 'int8': 1, 'uint8': 1, 'int16': 2, 'uint16': 2,
-         'int32': 4, 'uint32': 4, 'int64': 8, 'uint64': 8, 'float32': 4, 'float64': 8}
 DTYPES = {'bool': '?', 'byte': 'u1', 'char': 'u1', 'int8': 'i1', 'uint8': 'u1', 'int16': '<i2',
           'uint16': '<u2', 'int32': '<i4', 'uint32': '<u4', 'int64': '<i8', 'uint64': '<u8',
           'float32': '<f4', 'float64': '<f8'}
+SIZES = {base: np.dtype(code).itemsize for base, code in DTYPES.items()}
 CDR_LE = b'\x00\x01'   # the encapsulation of little-endian CDR (bytes 2-3: options)
 # The most layouts one length group is split into before the rest goes to rosbags.
 MAX_LAYOUTS = 8
@@ -151,16 +150,11 @@ def _walk(leaves: Sequence[Field], length_at: Callable[[int], int], limit: int,
     entries: list[Entry] = []
     pos = 0
     for index, leaf in enumerate(leaves):
-        if leaf.kind == 'value':
-            size = SIZES[leaf.base]
+        if leaf.kind in ('value', 'array'):
+            size, count = SIZES[leaf.base], leaf.size if leaf.kind == 'array' else 1
             pos = _align(pos, size)
-            entries.append((index, -1, 'v', pos, 1))
-            pos += size
-        elif leaf.kind == 'array':
-            size = SIZES[leaf.base]
-            pos = _align(pos, size)
-            entries.append((index, -1, 'v', pos, leaf.size))
-            pos += size * leaf.size
+            entries.append((index, -1, 'v', pos, count))
+            pos += size * count
         elif leaf.kind == 'string':
             pos = _string(entries, index, -1, pos, length_at, limit)
         else:
@@ -237,13 +231,13 @@ class Table:
                 starts = np.concatenate([[0], np.cumsum(counts)])[:-1]
                 picked = counts[index]
                 out.lengths[path] = picked
-                out.columns[path] = values[_ranges(starts[index], picked)]
+                out.columns[path] = values[ranges(starts[index], picked)]
             else:
                 out.columns[path] = values[index]
         return out
 
 
-def _ranges(starts: IntArray, counts: IntArray) -> IntArray:
+def ranges(starts: IntArray, counts: IntArray) -> IntArray:
     """The indices ``starts[i] .. starts[i] + counts[i] - 1`` of every ``i``, concatenated."""
     total = int(counts.sum())
     placed = np.cumsum(counts) - counts   # where each range starts in the output
@@ -743,9 +737,3 @@ def _end(entries: Sequence[Entry], leaves: Sequence[Field]) -> int:
         else:
             end = max(end, offset + count * SIZES[leaves[index].base])
     return end
-
-
-def iter_rows(table: Table, paths: Iterable[str]) -> Iterable[tuple[Any, ...]]:
-    """Rows of some scalar columns, as Python values (for the few messages that are few)."""
-    columns = [table.columns[p].tolist() for p in paths]
-    return zip(*columns, strict=True)

@@ -12,7 +12,6 @@ and the estimator load (``turning-force run EXP --params FILE``, or a second
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -32,17 +31,12 @@ from turning_force.core.identify import (
     identify,
 )
 from turning_force.core.plant.drive import clarke_park
+from turning_force.core.yamlfile import yaml_text
 from turning_force.session.bag import BagError, typestore
-from turning_force.session.reader import Session, read_session
+from turning_force.session.reader import Session, applied_overrides, read_session
 
-__all__ = [
-    'MEASURED_FORCE_TOPIC',
-    'calibrate_map_sessions',
-    'cut_depth_mm',
-    'format_parameters',
-    'identify_sessions',
-    'recording_from_session',
-]
+__all__ = ['MEASURED_FORCE_TOPIC', 'calibrate_map_sessions', 'cut_depth_mm', 'format_parameters',
+           'identify_sessions', 'recording_from_session']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -86,11 +80,8 @@ def _measured_per_block(session: Session, axis: str) -> FloatArray | None:
     values = np.array([v for _, v in readings])
     order = np.argsort(times)
     times, values = times[order], values[order]
-    starts = session.block_starts_s
+    starts, ends = session.block_starts_s, session.t_s
     period = session.blocks[0].sample_period_s
-    c = session.currents
-    ends = starts + (np.full(starts.size, c.samples_per_block) if c is not None
-                     else np.array([len(b) for b in session.blocks])) * period
     # Half a sample of slack: a stamp on the block's last sample is inside it.
     first = np.searchsorted(times, starts - 0.5 * period, side='left')
     last = np.searchsorted(times, ends - 0.5 * period, side='left')
@@ -114,11 +105,7 @@ def recording_from_session(session: Session, axis: str = 'z') -> Recording:
         periods = {b.sample_period_s for b in session.blocks}
         raise BagError(f'{session.path}: blocks of {sorted(lengths)} samples at '
                        f'{sorted(periods)} s: identification needs one block size and rate')
-    answered = session.signals['answered_override_pct']
-    applied = np.concatenate([[PROGRAMMED_FEED_PCT], answered[:-1]])
-    for k in range(1, applied.size):   # a block nobody answered: the PMC held its value
-        if not math.isfinite(applied[k]):
-            applied[k] = applied[k - 1]
+    applied = applied_overrides(session.signals['answered_override_pct'], PROGRAMMED_FEED_PCT)
     status = session.signals['estimate_status']
     currents = clarke_park(c.phase_u_a, c.phase_v_a, c.rotor_angle_rad)[1]
     return Recording(
@@ -166,25 +153,12 @@ def cut_depth_mm(sessions: Sequence[Session]) -> float | None:
     return max(depths) if depths else None
 
 
-def _yaml_value(value: Any) -> str:
-    """A value as YAML reads back to the same type: floats always with a point and a signed
-    exponent (YAML 1.1 reads ``1e-06`` as text)."""
-    if isinstance(value, str):
-        return value
-    text = repr(float(f'{float(value):.6g}'))
-    if 'e' in text:
-        mantissa, exponent = text.split('e')
-        if '.' not in mantissa:
-            mantissa += '.0'
-        sign = '' if exponent.startswith(('-', '+')) else '+'
-        text = f'{mantissa}e{sign}{exponent}'
-    return text
-
-
 def format_parameters(sections: Mapping[str, Mapping[str, Any]], header: Sequence[str]) -> str:
     """A ROS 2 parameters file (``/**/<node>: ros__parameters: ...``) with a comment header."""
     lines = [f'# {line}' if line else '#' for line in header]
     for node, params in sections.items():
         lines += [f'/**/{node}:', '  ros__parameters:']
-        lines += [f'    {name}: {_yaml_value(value)}' for name, value in params.items()]
+        for name, value in params.items():   # numbers to 6 digits
+            text = value if isinstance(value, str) else yaml_text(float(f'{float(value):.6g}'))
+            lines.append(f'    {name}: {text}')
     return '\n'.join(lines) + '\n'

@@ -20,11 +20,12 @@ a warning too.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from functools import cache
+from functools import cache, cached_property
 from pathlib import Path
 from typing import Any, cast, overload
 
@@ -43,7 +44,7 @@ from rosbags.typesys.store import Typestore
 
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import Experiment, build_experiment, parse_experiment
-from turning_force.core.kernel.batch import CurrentArrays
+from turning_force.core.kernel.batch import CurrentArrays, InputArrays
 from turning_force.core.metrics import compute_metrics
 from turning_force.core.plant.drive import CurrentBlock
 from turning_force.core.pmc.shopfloor import CutRecord, InputValues
@@ -60,9 +61,9 @@ from turning_force.session.bag import (
 from turning_force.session.codec import DECODE_ERRORS, Table, TableBuilder
 from turning_force.session.scan import McapScan, MessageSink, scan_mcap
 
-__all__ = ['DECODE_ERRORS', 'Recording', 'Session', 'TopicInfo', 'estimate_metrics',
-           'read_recording', 'read_session', 'recorded_metrics', 'recorded_reachable',
-           'session_typestore']
+__all__ = ['DECODE_ERRORS', 'Recording', 'Session', 'TopicInfo', 'applied_overrides',
+           'estimate_metrics', 'read_metadata', 'read_recording', 'read_session',
+           'recorded_metrics', 'recorded_reachable', 'session_typestore']
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -76,17 +77,35 @@ MSGTYPES = {
     'pmc/feed_override': 'turning_force_msgs/msg/FeedOverride',
     'sim/cutting_state': 'turning_force_msgs/msg/CuttingState',
 }
-# The fields of the answers that the signals (and the arming) come from; servo/currents and
-# pmc/cuts are kept whole.
-STAMP = ('header.stamp.sec', 'header.stamp.nanosec')
-KEPT = {
-    'force/estimate': (*STAMP, 'force_n', 'force_rate_n_s', 'status'),
-    'control/feed_command': (*STAMP, 'override_pct', 'reference_force_n', 'sliding_variable',
-                             'reference_reachable'),
-    'pmc/feed_override': (*STAMP, 'applied_pct', 'reason', 'armed', 'program_enable',
-                          'threading', 'operator_dial_pct', 'engaged', 'alarm', 'stop_request'),
-    'sim/cutting_state': (*STAMP, 'force_n', 'depth_of_cut_mm', 'feed_mm_rev', 'override_pct'),
+# Each signal of a session (per block, NaN where no message answers it): the answering topic
+# and the field it comes from. The decision's inputs and outputs are NaN in sessions recorded
+# before FeedOverride carried them.
+SIGNALS: dict[str, tuple[str, str]] = {
+    'estimated_force_n': ('force/estimate', 'force_n'),
+    'estimated_force_rate_n_s': ('force/estimate', 'force_rate_n_s'),
+    'estimate_status': ('force/estimate', 'status'),
+    'requested_override_pct': ('control/feed_command', 'override_pct'),
+    'reference_n': ('control/feed_command', 'reference_force_n'),
+    'sliding_variable': ('control/feed_command', 'sliding_variable'),
+    'reference_reachable': ('control/feed_command', 'reference_reachable'),
+    'answered_override_pct': ('pmc/feed_override', 'applied_pct'),
+    'override_reason': ('pmc/feed_override', 'reason'),
+    'program_enable': ('pmc/feed_override', 'program_enable'),
+    'threading': ('pmc/feed_override', 'threading'),
+    'operator_dial_pct': ('pmc/feed_override', 'operator_dial_pct'),
+    'engaged': ('pmc/feed_override', 'engaged'),
+    'alarm': ('pmc/feed_override', 'alarm'),
+    'stop_request': ('pmc/feed_override', 'stop_request'),
+    'force_n': ('sim/cutting_state', 'force_n'),
+    'depth_mm': ('sim/cutting_state', 'depth_of_cut_mm'),
+    'feed_mm_rev': ('sim/cutting_state', 'feed_mm_rev'),
+    'applied_override_pct': ('sim/cutting_state', 'override_pct'),
 }
+# The fields decoded of the answers: their stamps, the signals' and the bridge's armed flag;
+# servo/currents and pmc/cuts are kept whole.
+STAMP = ('header.stamp.sec', 'header.stamp.nanosec')
+KEPT = {topic: (*STAMP, *(f for t, f in SIGNALS.values() if t == topic),
+                *(('armed',) if topic == 'pmc/feed_override' else ())) for topic in ANSWERS}
 SAFE_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)   # libyaml's where installed
 SHOWN = 3   # damaged stretches and gaps named in one line; the rest are counted
 
@@ -170,7 +189,7 @@ class Recording:
         return '; '.join(warning)
 
 
-def _metadata(path: Path) -> tuple[dict[str, Any], dict[str, str], dict[str, TopicInfo]]:
+def read_metadata(path: Path) -> tuple[dict[str, Any], dict[str, str], dict[str, TopicInfo]]:
     """metadata.yaml: its rosbag2 information, custom data and topics."""
     where = path / 'metadata.yaml'
     try:
@@ -210,7 +229,7 @@ def _open(path: Path) -> tuple[dict[str, Any], dict[str, str], dict[str, TopicIn
                            f'killed before it wrote one): `turning-force repair {path}` '
                            'rebuilds it from what the file holds')
         raise BagError(f'{path}: not a rosbag2 folder (no metadata.yaml)')
-    return _metadata(path)
+    return read_metadata(path)
 
 
 def _scan(mcap: Path, sink: MessageSink | None = None) -> McapScan:
@@ -337,17 +356,21 @@ class Session:
             return self.currents.t0_s
         return np.array([b.t0_s for b in self.blocks])
 
+    @cached_property
+    def input_arrays(self) -> InputArrays:
+        """The machine's inputs each recorded decision saw, as arrays (NaN in the signals: the
+        session does not say, no answer or recorded before the bridge recorded them)."""
+        s = self.signals
+        enable, threading, dial = s['program_enable'], s['threading'], s['operator_dial_pct']
+        given = ~(np.isnan(enable) | np.isnan(threading))
+        return InputArrays(given, np.where(given & (enable >= 0), enable, -1).astype(np.int8),
+                           np.where(given & (threading >= 0), threading, -1).astype(np.int8),
+                           np.where(given, dial, np.nan))
+
     def inputs(self, k: int) -> InputValues | None:
         """The machine's inputs the decision answering block ``k`` saw; None where the session
-        does not say (no answer, or recorded before the bridge recorded them)."""
-        s = self.signals
-        enable, threading, dial = (s['program_enable'][k], s['threading'][k],
-                                   s['operator_dial_pct'][k])
-        if np.isnan(enable) or np.isnan(threading):
-            return None
-        return InputValues(None if enable < 0 else bool(enable),
-                           None if threading < 0 else bool(threading),
-                           None if np.isnan(dial) else float(dial))
+        does not say."""
+        return self.input_arrays(k)
 
     @property
     def versions(self) -> dict[str, str]:
@@ -598,19 +621,18 @@ def _blocks(table: Table | None) -> tuple[CurrentArrays | None, list[CurrentBloc
     names = ('phase_u_a', 'phase_v_a', 'rotor_angle_rad', 'feed_rate_mm_min')
     if table is None or not table.count:
         return None, None, np.zeros(0, dtype=np.int64), problems
+    malformed = ('servo/currents blocks malformed (no samples, arrays of different lengths or '
+                 'a bad sample period)')
     if not all(n in table.lengths for n in names) or 'sample_period_s' not in table.columns:
-        problems.append(f'{table.count} servo/currents blocks malformed (no samples, arrays '
-                        'of different lengths or a bad sample period)')
+        problems.append(f'{table.count} {malformed}')
         return None, None, np.zeros(0, dtype=np.int64), problems
     period = table.columns['sample_period_s'].astype(np.float64)
     lengths = table.lengths['phase_u_a']
     good = (np.isfinite(period) & (period > 0) & (period < 1.0) & (lengths > 0))
     for name in names[1:]:
         good &= table.lengths[name] == lengths
-    malformed = int(np.count_nonzero(~good))
-    if malformed:
-        problems.append(f'{malformed} servo/currents blocks malformed (no samples, arrays of '
-                        'different lengths or a bad sample period)')
+    if not good.all():
+        problems.append(f'{np.count_nonzero(~good)} {malformed}')
         table = table.take(np.flatnonzero(good))
         period, lengths = period[good], lengths[good]
     first = _stamps(table)
@@ -675,31 +697,20 @@ def _answers(table: Table | None, stamps: IntArray) -> IntArray:
 
 
 def _cuts(table: Table | None) -> list[CutRecord]:
-    if table is None:
+    names = [f.name for f in dataclasses.fields(CutRecord)]
+    if table is None or not all(n in table.columns for n in names):
         return []
-    c = table.columns
-    names = ('index', 'start_s', 'end_s', 'programmed_feed_s', 'max_force_n', 'mean_force_n',
-             'min_override_pct', 'overload_events', 'breakage', 'reachable_fraction',
-             'learned', 'complete')
-    if not all(n in c for n in (*names, 'tool')):
-        return []
-    return [CutRecord(int(c['index'][k]), table.text('tool', k), float(c['start_s'][k]),
-                      float(c['end_s'][k]), float(c['programmed_feed_s'][k]),
-                      float(c['max_force_n'][k]), float(c['mean_force_n'][k]),
-                      float(c['min_override_pct'][k]), int(c['overload_events'][k]),
-                      bool(c['breakage'][k]), float(c['reachable_fraction'][k]),
-                      bool(c['learned'][k]), bool(c['complete'][k]))
-            for k in range(table.count)]
+    def row(k: int) -> dict[str, Any]:
+        return {n: table.text(n, k) if n == 'tool' else table.columns[n][k].item()
+                for n in names}
+
+    return [CutRecord(**row(k)) for k in range(table.count)]
 
 
 def read_session(path: str | Path, partial: bool = False) -> Session:
-    """Read a session folder written by ``session_recorder``.
-
-    Streams through the MCAP file chunk by chunk, decoding the messages of the topics the
-    signals come from as arrays. Raises :class:`BagError` naming the bag and what is missing if
-    anything is (see the module docstring), unless ``partial``: then :attr:`Session.warning`
-    says it.
-    """
+    """Read a session folder written by ``session_recorder``, chunk by chunk, the signals'
+    topics decoded as arrays. A :class:`BagError` names the bag and what is missing (see the
+    module docstring), unless ``partial``: then :attr:`Session.warning` says it."""
     path = Path(path)
     info, custom, topics = _open(path)
     _check_types(path, topics)
@@ -714,53 +725,21 @@ def read_session(path: str | Path, partial: bool = False) -> Session:
     expected = recording.recorded('servo/currents')
     read = [f'servo/currents {count} of {expected} blocks read' if expected is not None
             else f'servo/currents {count} blocks read']
+    t_end = (currents.t_end_s if currents is not None else
+             np.array([b.t0_s + len(b) * b.sample_period_s for b in ragged or []]))
     if count:
-        if currents is not None:
-            start, end = float(currents.t0_s[0]), float(currents.t_end_s[-1])
-        else:
-            assert ragged is not None
-            start = ragged[0].t0_s
-            end = ragged[-1].t0_s + len(ragged[-1]) * ragged[-1].sample_period_s
-        read[0] += f' ({start:.3f}-{end:.3f} s)'
+        start = float(currents.t0_s[0]) if currents is not None else (ragged or [])[0].t0_s
+        read[0] += f' ({start:.3f}-{float(t_end[-1]):.3f} s)'
     problems = [*failed, *gaps]
     if recording.missing or problems:
         problems = [*read, *problems]
     warning = recording.check(partial, problems)
     if not count:
         raise BagError(f'{path}: no servo/currents blocks in the session')
-    if currents is not None:
-        t_end = currents.t_end_s
-    else:
-        assert ragged is not None
-        t_end = np.array([b.t0_s + len(b) * b.sample_period_s for b in ragged])
-    estimate, command, override, truth = (tables.get(t) for t in ANSWERS)
-    answering = {id(t): _answers(t, stamps) for t in (estimate, command, override, truth)}
-
-    def column(table: Table | None, name: str) -> FloatArray:
-        return _answer_column(table, answering[id(table)], name)
-
-    signals = {
-        'estimated_force_n': column(estimate, 'force_n'),
-        'estimated_force_rate_n_s': column(estimate, 'force_rate_n_s'),
-        'estimate_status': column(estimate, 'status'),
-        'requested_override_pct': column(command, 'override_pct'),
-        'reference_n': column(command, 'reference_force_n'),
-        'sliding_variable': column(command, 'sliding_variable'),
-        'reference_reachable': column(command, 'reference_reachable'),
-        'answered_override_pct': column(override, 'applied_pct'),
-        'override_reason': column(override, 'reason'),
-        # What the decision saw and set (NaN in sessions recorded before these fields).
-        'program_enable': column(override, 'program_enable'),
-        'threading': column(override, 'threading'),
-        'operator_dial_pct': column(override, 'operator_dial_pct'),
-        'engaged': column(override, 'engaged'),
-        'alarm': column(override, 'alarm'),
-        'stop_request': column(override, 'stop_request'),
-        'force_n': column(truth, 'force_n'),
-        'depth_mm': column(truth, 'depth_of_cut_mm'),
-        'feed_mm_rev': column(truth, 'feed_mm_rev'),
-        'applied_override_pct': column(truth, 'override_pct'),
-    }
+    answering = {t: _answers(tables.get(t), stamps) for t in ANSWERS}
+    signals = {name: _answer_column(tables.get(topic), answering[topic], path)
+               for name, (topic, path) in SIGNALS.items()}
+    override, truth = tables.get('pmc/feed_override'), tables.get('sim/cutting_state')
     arm_changes: list[tuple[float, bool]] = []
     if override is not None and override.count and 'armed' in override.columns:
         carried = _stamps(override)
@@ -776,12 +755,15 @@ def read_session(path: str | Path, partial: bool = False) -> Session:
                    ragged=ragged)
 
 
-def _held(values: FloatArray, initial: float) -> FloatArray:
-    """An override as the PMC holds it: the last value written, where a block had no answer."""
-    written = np.where(np.isfinite(values), np.arange(values.size), -1)
+def applied_overrides(answered_pct: FloatArray, initial_pct: float) -> FloatArray:
+    """The override each block ran at: the answer to the block before, or the last answer
+    before that where a block was not answered (the PMC holds it); ``initial_pct`` before the
+    first answer."""
+    written = np.where(np.isfinite(answered_pct), np.arange(answered_pct.size), -1)
     np.maximum.accumulate(written, out=written)
-    held: FloatArray = np.where(written >= 0, values[np.maximum(written, 0)], initial)
-    return held
+    held = np.where(written >= 0, answered_pct[np.maximum(written, 0)], initial_pct)
+    applied: FloatArray = np.concatenate([[initial_pct], held[:-1]])
+    return applied
 
 
 def _block_lengths_s(session: Session) -> FloatArray:
@@ -826,8 +808,7 @@ def estimate_metrics(session: Session, experiment: Experiment, force_n: FloatArr
     reference = (np.full_like(force_n, experiment.controller.reference_force_n)
                  if reference_n is None else reference_n)
     depth = session.signals['depth_mm'] if session.has_truth else np.ones_like(force_n)
-    initial = experiment.controller.initial_override_pct
-    applied = np.concatenate([[initial], _held(answered_pct, initial)[:-1]])
+    applied = applied_overrides(answered_pct, experiment.controller.initial_override_pct)
     keep = np.isfinite(force_n) & np.isfinite(reference) & np.isfinite(depth)
     return compute_metrics(
         session.t_s[keep], force_n[keep], reference[keep], depth[keep], applied[keep],

@@ -31,7 +31,12 @@ from turning_force.session.bag import (
     SessionWriter,
     dumps,
 )
-from turning_force.session.reader import DECODE_ERRORS, read_recording, session_typestore
+from turning_force.session.reader import (
+    DECODE_ERRORS,
+    read_metadata,
+    read_recording,
+    session_typestore,
+)
 from turning_force.session.scan import McapScan, scan_mcap
 
 __all__ = ['RepairResult', 'repair']
@@ -54,15 +59,12 @@ class RepairResult:
 def _old_metadata(path: Path) -> tuple[dict[str, str], dict[str, int] | None, str | None]:
     """(custom data, counts if final, the .mcap it names) from the old metadata.yaml, if any."""
     try:
-        info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
-        custom = {str(k): str(v) for k, v in (info.get('custom_data') or {}).items()}
-        counts = {str(t['topic_metadata']['name']): int(t['message_count'])
-                  for t in info.get('topics_with_message_count') or []}
-        files = info.get('relative_file_paths') or []
-        name = str(files[0]) if isinstance(files, list) and len(files) == 1 else None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, ValueError,
-            AttributeError, IndexError):
+        info, custom, topics = read_metadata(path)
+    except BagError:
         return {}, None, None
+    files = info.get('relative_file_paths') or []
+    name = str(files[0]) if isinstance(files, list) and len(files) == 1 else None
+    counts = {n: t.count for n, t in topics.items() if t.count is not None}
     return custom, None if CUSTOM_RECORDING in custom else counts, name
 
 

@@ -16,18 +16,20 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.errors import NoCutError
+from turning_force.core.errors import NoCutError, TurningForceError
 from turning_force.core.experiment import Experiment, parse_set
-from turning_force.core.kernel.batch import CurrentArrays, InputArrays, replay_chain
+from turning_force.core.kernel.batch import CurrentArrays, replay_chain
+from turning_force.core.overlay import with_parameters_file
 from turning_force.core.plant.drive import CurrentBlock
 from turning_force.session.bag import BagError
 from turning_force.session.reader import Session, estimate_metrics, recorded_reachable
 
-__all__ = ['ReplayResult', 'replay']
+__all__ = ['ReplayResult', 'lay_settings', 'replay']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -46,6 +48,27 @@ class ReplayResult:
     differing_overrides: int
     differing_reasons: int
 
+    def comparison(self, blocks: int) -> dict[str, float]:
+        """How far the re-run is from the recording (``--json``'s ``comparison``)."""
+        return {'max_force_difference_n': self.max_force_difference_n,
+                'max_request_difference_pct': self.max_request_difference_pct,
+                'differing_overrides': self.differing_overrides,
+                'differing_reasons': self.differing_reasons, 'blocks': blocks}
+
+
+def lay_settings(session: Session, experiment: Experiment | None,
+                 params: Sequence[str | Path]) -> None:
+    """The settings to replay with: ``experiment`` instead of the recorded ones (if given),
+    then the ``--params`` files laid over them in order."""
+    if experiment is not None:
+        session.experiment = experiment
+    if params and session.experiment is None:
+        raise TurningForceError(f'{session.path}: no recorded parameters to lay --params '
+                                'over; give --experiment')
+    for file in params:
+        assert session.experiment is not None
+        session.experiment = with_parameters_file(session.experiment, file)
+
 
 def replay(session: Session, sets: Sequence[str] = (),
            progress: Callable[[int, int], None] | None = None) -> ReplayResult:
@@ -62,7 +85,7 @@ def replay(session: Session, sets: Sequence[str] = (),
     # The recording says when the bridge was armed; a --set of the arming says otherwise.
     overridden = any(parse_set(text)[1] in ('armed', 'arm_bridge') for text in sets)
     changes = [] if overridden else list(session.arm_changes)
-    trace = replay_chain(experiment, _currents(session), changes, _inputs(session),
+    trace = replay_chain(experiment, _currents(session), changes, session.input_arrays,
                          _recorded_reference(session, experiment, sets), progress=progress)
     force = trace.estimated_force_n
     requested = trace.requested_override_pct
@@ -101,16 +124,6 @@ def _currents(session: Session) -> CurrentArrays | list[CurrentBlock]:
     if session.currents is not None:
         return session.currents
     return list(session.blocks)
-
-
-def _inputs(session: Session) -> InputArrays:
-    """The machine's inputs each recorded decision saw (:meth:`Session.inputs`, as arrays)."""
-    s = session.signals
-    enable, threading, dial = s['program_enable'], s['threading'], s['operator_dial_pct']
-    given = ~(np.isnan(enable) | np.isnan(threading))
-    return InputArrays(given, np.where(given & (enable >= 0), enable, -1).astype(np.int8),
-                       np.where(given & (threading >= 0), threading, -1).astype(np.int8),
-                       np.where(given, dial, np.nan))
 
 
 def _recorded_reference(session: Session, experiment: Experiment,

@@ -130,6 +130,13 @@ def _bins(n: int, columns: int = COLUMNS) -> int:
     return 1 if n <= 2 * columns else -(-n // columns)
 
 
+def _by_column(y: FloatArray, step: int) -> FloatArray:
+    """``y`` as rows of ``step`` samples, one per column, the last padded with NaN."""
+    padded = np.full(-(-y.size // step) * step, np.nan)
+    padded[:y.size] = y
+    return padded.reshape(-1, step)
+
+
 def _envelope(t: FloatArray, y: FloatArray, columns: int = COLUMNS
               ) -> tuple[FloatArray, FloatArray]:
     """``y`` over ``t`` as at most two points per column: the smallest and the largest of the
@@ -139,10 +146,8 @@ def _envelope(t: FloatArray, y: FloatArray, columns: int = COLUMNS
     step = _bins(t.size, columns)
     if step == 1:
         return t, y
-    count = -(-t.size // step)
-    padded = np.full(count * step, np.nan)
-    padded[:t.size] = y
-    rows = padded.reshape(count, step)
+    rows = _by_column(y, step)
+    count = rows.shape[0]
     finite = np.isfinite(rows)
     low = np.where(finite, rows, np.inf).argmin(axis=1)
     high = np.where(finite, rows, -np.inf).argmax(axis=1)
@@ -160,10 +165,7 @@ def _band(t: FloatArray, y: FloatArray, columns: int = COLUMNS
     step = _bins(t.size, columns)
     if step == 1:
         return t, y, y
-    count = -(-t.size // step)
-    padded = np.full(count * step, np.nan)
-    padded[:t.size] = y
-    rows = padded.reshape(count, step)
+    rows = _by_column(y, step)
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', RuntimeWarning)   # an all-NaN column: NaN
         return t[::step], np.nanmin(rows, axis=1), np.nanmax(rows, axis=1)

@@ -43,15 +43,7 @@ import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
-from mcap.records import (
-    Channel,
-    Chunk,
-    ChunkIndex,
-    Footer,
-    Message,
-    Metadata,
-    Schema,
-)
+from mcap.records import Channel, Chunk, ChunkIndex, Footer, Message, Metadata, Schema
 
 __all__ = ['MAGIC', 'McapScan', 'MessageSink', 'scan_mcap']
 

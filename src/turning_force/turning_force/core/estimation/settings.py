@@ -30,13 +30,8 @@ from turning_force.core.plant.drive import (
 )
 from turning_force.core.settings import setting
 
-__all__ = [
-    'EstimateStatus',
-    'EstimatorSettings',
-    'ForceEstimate',
-    'air_cut_point',
-    'calibrate_friction',
-]
+__all__ = ['EstimateStatus', 'EstimatorSettings', 'ForceEstimate', 'air_cut_point',
+           'calibrate_friction']
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -2,15 +2,10 @@
 and the closed core loop keeping everything a session records.
 
 A run of DAQ blocks is held as arrays (:class:`CurrentArrays`, n blocks of m samples), and what the
-chain did as one row per block (:class:`ChainTrace`): the estimate, the command, the gate's
-decision and what ``FeedOverride`` carries of it. :func:`replay_chain` is the loop of
-:mod:`turning_force.session.replay` (arming and disarming at the recorded times, each decision made
-at the end of its block); :func:`run_core` is :func:`turning_force.core.kernel.simulate.simulate`
-keeping every sample, estimate, command and decision besides its trace.
-
-Both run compiled (``replay_blocks`` and ``run_core_kept`` of
-:mod:`turning_force.core.kernel.loops`): the same estimator, controller and gate the nodes run.
-Blocks of differing lengths or sample periods (no one array holds them) go through
+chain did as one row per block (:class:`ChainTrace`). :func:`replay_chain` is replay's loop and
+:func:`run_core` is :func:`turning_force.core.kernel.simulate.simulate` keeping every sample,
+estimate, command and decision; both run compiled (:mod:`turning_force.core.kernel.loops`). Blocks
+of differing lengths or sample periods go through
 :class:`turning_force.core.kernel.chain.ControlChain` one block at a time: the same functions
 again. """
 

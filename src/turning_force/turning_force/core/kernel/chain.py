@@ -9,14 +9,9 @@ The chain is what the graph does between the DAQ and the PMC, in the graph's ord
 
 A learning cut (teach-in) that has just ended sets the controller's reference from the next block
 on, as the bridge's ``force/reference`` does in the graph; cuts that ended go to :attr:`cuts`.
-
 The nodes run the same pieces (``force_estimator`` the estimator, ``force_controller``
-:func:`command_for`, ``pmc_bridge`` the gate); the core loop (:mod:`.simulate`), replay and any
-offline study run this class, so all of them make the same decisions from the same blocks.
-
-The estimator and the controller run compiled (the one source of each: the core loop, replay
-and the nodes all run the same functions); the gate is the bridge's (with the shop-floor
-behaviours), a few comparisons per block.
+:func:`command_for`, ``pmc_bridge`` the gate), compiled where the core loop and replay run them,
+so all of them make the same decisions from the same blocks.
 """
 
 from __future__ import annotations
@@ -37,7 +32,8 @@ from turning_force.core.pmc.gate import OverrideGate
 from turning_force.core.pmc.settings import BridgeSettings, Decision
 from turning_force.core.pmc.shopfloor import CutRecord, InputValues, Learned, taught_reference
 
-__all__ = ['ChainStep', 'ControlChain', 'command_for', 'command_for_would_act']
+__all__ = ['ChainStep', 'ControlChain', 'check_taught_reference', 'command_for',
+           'command_for_would_act']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -80,9 +76,6 @@ class ControlChain:
     ``reference_force_n``: the reference to start from. ``None``: the tool's taught one where
     the bridge names a teach-in file that has it (as the bridge publishes it when configured),
     else the controller settings'. Replay passes the one the session ran with.
-
-    The gate is the Python one (the bridge's, with the shop-floor behaviours): a few
-    comparisons per block.
     """
 
     def __init__(self, estimator: EstimatorSettings, controller: ControllerSettings,
@@ -136,11 +129,16 @@ class ControlChain:
         return self.cuts
 
 
-def _with_reference(controller: ControllerSettings, reference_force_n: float,
-                    bridge: BridgeSettings) -> ControllerSettings:
-    """The controller settings with a taught reference, refused where it would hold the feed."""
+def check_taught_reference(reference_force_n: float, bridge: BridgeSettings) -> None:
+    """Refuse a taught reference that would hold the feed (not below the overload limit)."""
     if not reference_force_n < bridge.overload_force_n:
         raise ConfigError(f'{bridge.teach_file}: tools.{bridge.tool}.reference_force_n = '
                           f'{reference_force_n!r}: not below pmc_bridge.overload_force_n '
                           f'({bridge.overload_force_n:g} N)')
+
+
+def _with_reference(controller: ControllerSettings, reference_force_n: float,
+                    bridge: BridgeSettings) -> ControllerSettings:
+    """The controller settings with a taught reference."""
+    check_taught_reference(reference_force_n, bridge)
     return controller.replace(reference_force_n=reference_force_n)

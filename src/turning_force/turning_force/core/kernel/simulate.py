@@ -1,14 +1,11 @@
 """The closed loop in one function, no ROS: plant -> control chain (estimator, controller, PMC
-gate, :class:`turning_force.core.kernel.chain.ControlChain`) -> plant.
+gate) -> plant.
 
 Each control period the plant delivers one block of currents at the override the PMC applied in
-the period before; the chain runs on it and its gate (quantiser, watchdog, overload hold, the
-shop-floor behaviours) decides what is applied for the next block. That one-period delay and
-that gate are the same the node graph has, so both give the same numbers.
-
-The loop is compiled (``run_core`` of :mod:`turning_force.core.kernel.loops`): the plant, the
-estimator, the controller and the gate are the same functions the nodes run, over stretches of
-blocks whose noise is drawn in advance from the plant's own generator.
+the period before, and the chain's gate decides what is applied for the next block: the same
+one-period delay and the same gate as the node graph, so both give the same numbers. The loop is
+compiled (``run_core`` of :mod:`turning_force.core.kernel.loops`), over stretches of blocks whose
+noise is drawn in advance from the plant's own generator.
 """
 
 from __future__ import annotations

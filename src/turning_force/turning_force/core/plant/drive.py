@@ -16,15 +16,8 @@ import numpy.typing as npt
 from turning_force.core.errors import ConfigError
 from turning_force.core.settings import Settings, setting
 
-__all__ = [
-    'CurrentBlock',
-    'CurrentForceMap',
-    'FeedDriveSettings',
-    'FrictionModel',
-    'clarke_park',
-    'inverse_park_clarke',
-    'rotor_angle_rad',
-]
+__all__ = ['CurrentBlock', 'CurrentForceMap', 'FeedDriveSettings', 'FrictionModel', 'clarke_park',
+           'inverse_park_clarke', 'rotor_angle_rad']
 
 FloatArray = npt.NDArray[np.float64]
 _SQRT3 = math.sqrt(3.0)
@@ -145,6 +138,14 @@ class FrictionModel:
         design = np.column_stack([(v - v_min) ** 2, np.ones_like(v)])
         (a, b), *_ = np.linalg.lstsq(design, i, rcond=None)
         return cls(float(a), float(b), v_min, v_max)
+
+    def parameters(self) -> dict[str, float]:
+        """The ``force_estimator`` parameters that hold this curve: its end points."""
+        span = self.max_feed_mm_min - self.min_feed_mm_min
+        return {'friction_min_feed_mm_min': self.min_feed_mm_min,
+                'friction_max_feed_mm_min': self.max_feed_mm_min,
+                'friction_at_min_feed_a': self.b_a,
+                'friction_at_max_feed_a': self.a_a_per_mm_min2 * span**2 + self.b_a}
 
     def current_a(self, feed_rate_mm_min: FloatArray) -> FloatArray:
         """Friction current [A] at the given feed rates [mm/min] (Eq. 25)."""

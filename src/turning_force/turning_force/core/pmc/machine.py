@@ -1,40 +1,14 @@
 """A machine file: one CNC's override interface and how it is wired (``config/machines/``).
 
-The file says which override table the PMC reads, where the override bits go (the ``backend``:
-``simulated``, or a Modbus/TCP digital I/O module whose outputs drive the PMC's inputs), and the
-optional inputs and outputs a machinist's behaviours use::
-
-    name: fanuc_0t
-    override_table: fanuc_0t_4bit        # a built-in table, or an inline table (a mapping)
-    backend:
-      type: modbus_tcp                   # simulated | modbus_tcp
-      host: 192.168.1.50
-      port: 502
-      unit_id: 1
-      override_coils: [0, 1, 2, 3]       # the coil of each override signal, bit 0 first
-      logic: direct                      # coil on = PMC signal 1 (direct) or 0 (inverted)
-      readback_address: 512              # first coil of the module's output image
-      timeout_s: null                    # null: one control period
-      reconnect_min_s: 0.1               # back-off after a fault, doubling up to ...
-      reconnect_max_s: 5.0
-      fail_safe_pct: 100.0               # what the module's watchdog must fall back to
-    inputs:                              # all optional
-      program_enable: {discrete_input: 0, logic: direct}
-      threading: {discrete_input: 1, logic: direct}
-      operator_dial: {discrete_inputs: [2, 3, 4, 5], table: fanuc_0t_4bit, logic: direct}
-    outputs:                             # all optional
-      alarm: {coil: 4, logic: direct}
-      stop_request: {coil: 5, logic: direct}
-
-The PMC's own sense of its signals (FANUC's ``*FV`` are active low) belongs to the table
-(``negative_logic``); ``logic`` here is the wiring between a module's point and the PMC: whether
-an energised output (or a set input) means the signal is 1 (``direct``) or 0 (``inverted``).
-The override coils form one contiguous block (in any order), so that one Modbus request sets
-every bit at once and the PMC never sees a pattern between two levels.
-
-An operator dial is read either as discrete inputs decoded with a table (the dial's own code,
-e.g. a FANUC 0-T's sixteen positions) or as a register scaled to percent
-(``{input_register: 0, scale_pct: 1.0}``, or ``holding_register``).
+It names the override table the PMC reads, the ``backend`` (``simulated``, or a Modbus/TCP
+digital I/O module whose outputs drive the PMC's inputs) and the optional inputs (program
+enable, threading, operator dial) and outputs (alarm, stop request); the shipped files and
+docs/machine-pc.md show every key. ``logic`` is the wiring between a module's point and the
+PMC (``direct``: an energised output, or a set input, means the signal is 1); the PMC's own
+sense of its signals (FANUC's active-low ``*FV``) belongs to the table. The override coils form
+one contiguous block, so that one request sets every bit and the PMC never sees a pattern
+between two levels. A dial is read as discrete inputs decoded with a table, or as a register
+scaled to percent.
 
 Errors name the file, the key and the bad value. ROS-free: the nodes and ``pmc-check`` read it.
 """
@@ -52,17 +26,8 @@ from turning_force.core.errors import ConfigError
 from turning_force.core.pmc.overrides import OverrideTable, get_table
 from turning_force.core.yamlfile import read_yaml_file
 
-__all__ = [
-    'BACKENDS',
-    'DialInput',
-    'DigitalPoint',
-    'Machine',
-    'MachineInputs',
-    'MachineOutputs',
-    'ModbusTcp',
-    'load_machine',
-    'parse_machine',
-]
+__all__ = ['BACKENDS', 'DialInput', 'DigitalPoint', 'Machine', 'MachineInputs', 'MachineOutputs',
+           'ModbusTcp', 'load_machine', 'parse_machine']
 
 BACKENDS = ('simulated', 'modbus_tcp')
 LOGIC = ('direct', 'inverted')

@@ -175,28 +175,16 @@ class OverrideTable:
             raise ConfigError(f'{where}: malformed override table: {exc!r}') from exc
 
 
-def _fanuc_0t_4bit() -> OverrideTable:
-    levels = tuple(10.0 * k for k in range(16))
-    return OverrideTable('fanuc_0t_4bit', levels, tuple(range(16)), 4, negative_logic=True)
-
-
-def _fanuc_8bit() -> OverrideTable:
+TABLES: Mapping[str, OverrideTable] = {t.name: t for t in (
+    # FANUC 0-T, four PMC points *FV0..*FV3: 0-150 % in 10 % steps (Park 1998, Sec. 2.1).
+    OverrideTable('fanuc_0t_4bit', tuple(10.0 * k for k in range(16)), tuple(range(16)), 4,
+                  negative_logic=True),
     # *FV0..*FV7 are active low; the code is the sum of the weights of the active signals.
     # All signals active (code 255) is read as 0 %, like none active.
-    levels = tuple(float(k) for k in range(255))
-    return OverrideTable(
-        'fanuc_8bit', levels, tuple(range(255)), 8, negative_logic=True, decode_aliases={255: 0.0}
-    )
-
-
-TABLES: Mapping[str, OverrideTable] = {
-    t.name: t
-    for t in (
-        _fanuc_0t_4bit(),
-        _fanuc_8bit(),
-        OverrideTable('ideal', (0.0, 150.0), continuous=True),
-    )
-}
+    OverrideTable('fanuc_8bit', tuple(float(k) for k in range(255)), tuple(range(255)), 8,
+                  negative_logic=True, decode_aliases={255: 0.0}),
+    OverrideTable('ideal', (0.0, 150.0), continuous=True),
+)}
 
 
 def get_table(name: str) -> OverrideTable:

@@ -38,11 +38,7 @@ from dataclasses import dataclass
 
 from turning_force.core import shared
 from turning_force.core.pmc.overrides import get_table, override_table
-from turning_force.core.pmc.shopfloor import (
-    NO_INPUTS,
-    InputValues,
-    ShopFloorSettings,
-)
+from turning_force.core.pmc.shopfloor import NO_INPUTS, InputValues, ShopFloorSettings
 from turning_force.core.settings import setting
 
 __all__ = ['BridgeSettings', 'Decision', 'Reason']

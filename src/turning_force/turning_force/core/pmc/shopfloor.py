@@ -1,39 +1,17 @@
 """What a machinist expects of adaptive feed: the shop-floor behaviours of the override gate.
 
 Commercial adaptive feed options (HEIDENHAIN AFC, Caron TMAC, CERATIZIT ToolScope, Haas
-Autofeed) bring behaviours around the control law that a shop relies on. Each is a
-``pmc_bridge`` setting here (:class:`ShopFloorSettings`), off or conservative by default:
+Autofeed) bring behaviours around the control law that a shop relies on: program enable,
+threading stand-down, the operator's dial, a rise limit, a feed floor, the air-cut override, the
+overload reaction, tool breakage, teach-in and the cut log. Each is a ``pmc_bridge`` setting
+here (:class:`ShopFloorSettings`, whose descriptions say what each does), off or conservative by
+default; docs/machine-pc.md tells them as a machinist meets them.
 
-- Program enable: the bridge acts only while the part program sets an input (an M-code relay,
-  ToolScope's M810/M811); otherwise it writes the programmed feed.
-- Threading: FANUC runs thread cutting and tapping at 100 % whatever the override; while an
-  input marks them the bridge stands down to the programmed feed.
-- The operator's dial keeps precedence: the lower of the dial and the controller's request, or
-  their product (a dial above 100 % never raises the feed over the request).
-- Rise limit: the override rises toward a higher request at most ``rise_rate_pct_s`` (Haas
-  recovers at 10 %/s); a fall is never slowed.
-- Feed floor: while cutting, a request below ``min_cut_override_pct`` is raised to it.
-- Air cut: out of the cut the feed is held to the air-cut override until the force rises
-  (AFC's FIDL, TMAC's approach override); engagement and exit are detected with hysteresis.
-- Overload reaction (AFC's OVLD): after ``reaction_delay_s`` above the reaction limit, raise the
-  alarm output, also hold the feed, or also request a stop or retract through an output.
-- Tool breakage: a force far above (a spike) or below (a drop) its recent level holds the feed
-  from the next control period.
-- Teach-in: a learning cut at the programmed feed records the tool's force level; the reference
-  becomes ``teach_fraction`` of it, kept per tool in ``teach_file`` for the next session.
-- Cut log (AFC's log): per cut from engagement to exit, the time, the time at a fixed 100 %
-  override, max and mean force, lowest override, overload events, reachable fraction.
-
-The safety gate keeps precedence over all of it (:mod:`turning_force.core.pmc.settings`): the
-overload hold, disarmed, the watchdog and invalid commands decide first. Nothing here writes more
-than the controller asked for, except the stand-downs to the programmed feed (threading, the
-program not enabling the option, a learning cut) and the feed floor, which is off by default.
-
-The behaviours are written once, compiled, with the safety gate (``gate_*`` in
-:mod:`turning_force.core.pmc.gate`, run by its ``OverrideGate`` and by the compiled loops), so that
-the core loop, replay and the bridge decide alike. This module holds their settings, the
-teach-in file and the records they give.
-"""
+The safety gate keeps precedence over all of it (:mod:`turning_force.core.pmc.settings`). Nothing
+here writes more than the controller asked for, except the stand-downs to the programmed feed and
+the feed floor, which is off by default. The behaviours are written once, compiled, with the safety
+gate (:mod:`turning_force.core.pmc.gate`), so that the core loop, replay and the bridge decide
+alike; this module holds their settings, the teach-in file and the records they give. """
 
 from __future__ import annotations
 
@@ -50,17 +28,8 @@ import yaml
 from turning_force.core.errors import ConfigError
 from turning_force.core.settings import Settings, setting
 
-__all__ = [
-    'NO_INPUTS',
-    'CutRecord',
-    'InputValues',
-    'Learned',
-    'ShopFloorSettings',
-    'TaughtTool',
-    'load_teach_file',
-    'save_teach_file',
-    'taught_reference',
-]
+__all__ = ['NO_INPUTS', 'CutRecord', 'InputValues', 'Learned', 'ShopFloorSettings', 'TaughtTool',
+           'load_teach_file', 'save_teach_file', 'taught_reference']
 
 DIAL_MODES = ('min', 'product', 'ignore')   # not 'off': YAML reads it as false
 REACTIONS = ('none', 'alarm', 'hold', 'stop')
@@ -312,15 +281,6 @@ class CutRecord:
     @property
     def duration_s(self) -> float:
         return self.end_s - self.start_s
-
-    def to_dict(self) -> dict[str, Any]:
-        return {'index': self.index, 'tool': self.tool, 'start_s': self.start_s,
-                'end_s': self.end_s, 'duration_s': self.duration_s,
-                'programmed_feed_s': self.programmed_feed_s, 'max_force_n': self.max_force_n,
-                'mean_force_n': self.mean_force_n, 'min_override_pct': self.min_override_pct,
-                'overload_events': self.overload_events, 'breakage': self.breakage,
-                'reachable_fraction': self.reachable_fraction, 'learned': self.learned,
-                'complete': self.complete}
 
 
 # --- the behaviours ---------------------------------------------------------------------------
