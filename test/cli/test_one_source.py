@@ -17,7 +17,7 @@ import pytest
 
 PROBE = Path(__file__).with_name('one_source_probe.py')
 LAWS = [f'turning_force.core.control.laws.{law}:step@{law}'
-        for law in ('smc', 'pi', 'adaptive', 'adaptive_smc', 'adaptive_pp', 'staircase')]
+        for law in ('smc', 'pi', 'adaptive', 'adaptive_smc', 'adaptive_pp', 'staircase', 'mpc')]
 ALGORITHMS = ['turning_force.core.plant.lathe:plant_step',
               'turning_force.core.estimation.estimator:estimator_update',
               'turning_force.core.control.update:controller_update', *LAWS,

@@ -222,7 +222,7 @@ def test_pole_placement_adaptive_settles_on_the_reference():
 
 # --- state that never recovers (issue: faults and bad input) ---------------------------------
 
-@pytest.mark.parametrize('name', ['adaptive_smc', 'adaptive_pp', 'smc', 'adaptive', 'pi'])
+@pytest.mark.parametrize('name', ['adaptive_smc', 'adaptive_pp', 'smc', 'adaptive', 'pi', 'mpc'])
 @pytest.mark.parametrize('absurd_n', [1e300, -1e300, math.inf, math.nan])
 def test_a_law_recovers_from_an_absurd_force(name, absurd_n):
     # Before: adaptive_smc and adaptive_pp requested NaN forever after a force of +-1e300 N

@@ -23,7 +23,7 @@ from turning_force.core.plant.settings import PlantSettings
     (RunSettings, 'control_period_s', -0.01, 'outside'),
     (ControllerSettings, 'model_cutting_time_constant_s', 0.0, 'outside'),
     (ControllerSettings, 'controller', 'fuzzy',
-     'expected one of smc, adaptive, adaptive_pp, adaptive_smc, pi'),
+     'expected one of smc, adaptive, adaptive_pp, adaptive_smc, mpc, pi'),
     (EstimatorSettings, 'force_filter', 'median', 'expected one of lowpass, kalman'),
     (ControllerSettings, 'reference_force_n', -500.0, 'outside'),
 ])

@@ -132,6 +132,9 @@ class ControllerBase(Settings):
     model_cutting_time_constant_s: float = setting(0.05, 'Process time constant tau_c the SMC '
                                                    'assumes (Park Eq. 1)', 's', low=0.0,
                                                    low_open=True, high=10.0)
+    model_cutting_exponent: float = setting(1.0, 'Feed exponent g of the force the laws assume, '
+                                            'F = K_s d f^g (Kienzle; 1: Park)', low=0.1,
+                                            high=2.0)
 
     def check(self) -> None:
         super().check()

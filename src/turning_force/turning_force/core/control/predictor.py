@@ -93,9 +93,9 @@ def _discretised(a_rows: tuple[tuple[float, ...], ...], b_values: tuple[float, .
 
 
 def model_matrices(servo_model: str, time_constant_s: float, natural_freq_rad_s: float,
-                   damping: float,
-                   cutting_time_constant_s: float) -> tuple[FloatArray, FloatArray]:
-    """(phi, gamma) of the machine model at ``MODEL_STEP_S``: the servo (first order, Park
+                   damping: float, cutting_time_constant_s: float,
+                   step_s: float = MODEL_STEP_S) -> tuple[FloatArray, FloatArray]:
+    """(phi, gamma) of the machine model at ``step_s``: the servo (first order, Park
     Eq. 2, or second order, Hwang & Chen Eq. 1) and the process lag (Park Eq. 1), in override
     percent. The state's first entry is the servo's feed and its last the process-lagged feed
     ``z``; the compiled predictor steps ``x = phi x + gamma u``, each row summed in order."""
@@ -108,7 +108,7 @@ def model_matrices(servo_model: str, time_constant_s: float, natural_freq_rad_s:
         a = np.array([[0.0, 1.0, 0.0], [-w * w, -2.0 * zeta * w, 0.0],
                       [1.0 / tau_c, 0.0, -1.0 / tau_c]])
         b = np.array([0.0, w * w, 0.0])
-    return _discretise(a, b, MODEL_STEP_S)
+    return _discretise(a, b, step_s)
 
 
 def params(servo_model: str, time_constant_s: float, natural_freq_rad_s: float, damping: float,

@@ -1,0 +1,224 @@
+"""Finite-control-set model predictive control over the override levels.
+
+The PMC takes a handful of override levels (16 on a FANUC 0-T), behind a dead time and the feed
+servo. As power electronics controls a converter with a handful of switch states (Rodriguez et
+al., "Predictive current control of a voltage source inverter", IEEE Trans. Ind. Electron.
+54(1), 2007, doi:10.1109/TIE.2006.888802: a cost evaluated for every switch state), this law
+predicts the force for each level it may send and sends the best, rather than rounding a
+continuous request.
+
+The model is the machine's (``model_*``, from ``turning-force identify``), at the control period
+``T``: the levels already sent go through the PMC's dead time (``D = round(model_dead_time_s /
+T)`` periods), then the servo (first or second order) and the process lag (``tau_c``), giving
+the feed ``z`` [% of the programmed feed] the process feels. The force is ``F = k z^g``
+(Kienzle's ``F = K_s d f^g``, ``g`` = ``model_cutting_exponent``), ``k`` (which holds ``K_s
+d``) learned on line as ``F / z^g`` while cutting. Every period, for each level ``u`` it may
+send now, the law predicts the feed over the horizon after the dead time (``H = mpc_horizon_s /
+T`` periods; within the dead time all is decided already) with ``u`` for one period and then a
+held feed ``v``, and charges::
+
+    J(u) = min_v  sum_{j=D+1}^{D+H} w^2 (z_j(u, v) - z_ref)^2 + rho (u - u_prev)^2
+
+where ``z_ref = (F_ref / k)^(1/g)`` is the feed that gives the reference, ``w = g k
+z_ref^(g-1)`` turns feed into force (``J`` is in N^2), and ``rho`` [N^2 per %^2] is the
+switching penalty. The tail ``v`` is the continuous relaxation of the levels the law will send
+after ``u`` (move blocking with the later moves relaxed): held on one level, the tail would ask
+each period for the level nearest the reference and miss the average the levels between
+them give. ``z`` is linear in ``u`` and ``v``, so ``v`` has a closed form (least squares,
+clipped to the table); the law sends the ``u`` of least ``J``.
+
+Being a model of the feed, not an integrator, the law holds no windup: with the tool out of the
+cut it asks for the level that would give the reference at the ``k`` last learned.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from turning_force.core.compiled import compiled
+from turning_force.core.control import predictor
+from turning_force.core.control.law import (
+    C_LAW,
+    C_REF,
+    CS_HELD,
+    CS_LAW,
+    OUT_ERR,
+    OUT_PCT,
+    OUT_S,
+    ControllerBase,
+    Law,
+)
+from turning_force.core.pmc.overrides import get_table
+from turning_force.core.settings import setting
+
+__all__ = ['LAW', 'Settings']
+
+# A continuous table (ideal) gives the law this many candidate levels over its range.
+CONTINUOUS_LEVELS = 31
+
+
+@dataclass(frozen=True)
+class Settings(ControllerBase):
+    """The predictive law's horizon and switching penalty."""
+
+    mpc_horizon_s: float = setting(0.3, 'Prediction horizon after the dead time (H T)', 's',
+                                   low=0.0, low_open=True, high=5.0, dynamic=True)
+    mpc_switch_penalty: float = setting(0.5, 'Switching penalty rho on each change of level',
+                                        'N^2/%^2', low=0.0, high=1e9, dynamic=True)
+    mpc_gain_time_constant_s: float = setting(0.05, 'Smoothing of the process gain k = F / z^g '
+                                              'learned while cutting', 's', low=1e-3,
+                                              high=10.0)
+
+    def check(self) -> None:
+        super().check()
+        if self.mpc_horizon_s < self.control_period_s:
+            self.fail('mpc_horizon_s', f'shorter than control_period_s '
+                                       f'({self.control_period_s} s)')
+
+
+# Parameters (from C_LAW): exponent g, rho, the gain's weight, its first value, the engaged
+# fraction, dead time D and horizon H [periods], the model's order, phi (3 x 3) and gamma (3)
+# at the period, how many levels, the levels.
+(P_EXPONENT, P_PENALTY, P_WEIGHT, P_GAIN0, P_ENGAGED, P_DEAD, P_HORIZON, P_LOW, P_HIGH,
+ P_NX) = range(C_LAW, C_LAW + 10)
+P_PHI, P_GAMMA, P_COUNT, P_LEVELS = C_LAW + 10, C_LAW + 19, C_LAW + 22, C_LAW + 23
+# State (from CS_LAW): k, the model's x (3), the queue's next place; the queue (D levels).
+S_GAIN, S_X, S_QIDX, S_QUEUE = CS_LAW, CS_LAW + 1, CS_LAW + 4, CS_LAW + 5
+
+
+def fill(settings: ControllerBase) -> tuple[Sequence[float], int]:
+    assert isinstance(settings, Settings)
+    c = settings
+    period = c.control_period_s
+    phi, gamma = predictor.model_matrices(
+        c.model_servo_model, c.model_servo_time_constant_s, c.model_servo_natural_freq_rad_s,
+        c.model_servo_damping, c.model_cutting_time_constant_s, step_s=period)
+    nx = gamma.size
+    phi_flat = np.zeros(9)
+    for i in range(nx):
+        phi_flat[3 * i:3 * i + nx] = phi[i]
+    gamma_flat = np.zeros(3)
+    gamma_flat[:nx] = gamma
+    table = get_table(c.override_table)
+    levels = (np.linspace(table.min_pct, table.max_pct, CONTINUOUS_LEVELS) if table.continuous
+              else np.array(table.levels_pct, dtype=np.float64))
+    dead = round(c.model_dead_time_s / period)
+    # k at 100 %: the reference, until the first cut says otherwise.
+    gain0 = c.reference_force_n / 100.0 ** c.model_cutting_exponent
+    own = [c.model_cutting_exponent, c.mpc_switch_penalty,
+           1.0 - math.exp(-period / c.mpc_gain_time_constant_s), gain0,
+           predictor.ENGAGED_FRACTION, dead, max(1, round(c.mpc_horizon_s / period)),
+           table.min_pct, table.max_pct, nx, *phi_flat,
+           *gamma_flat, levels.size, *levels]
+    return own, 5 + dead
+
+
+@compiled
+def reset(cp: np.ndarray, cs: np.ndarray) -> None:
+    """The model at rest at the held level, the queue full of it."""
+    held = cs[CS_HELD]
+    nx = int(cp[P_NX])
+    cs[S_GAIN] = cp[P_GAIN0]
+    for i in range(3):
+        cs[S_X + i] = 0.0
+    cs[S_X] = held
+    cs[S_X + nx - 1] = held
+    cs[S_QIDX] = 0.0
+    for i in range(int(cp[P_DEAD])):
+        cs[S_QUEUE + i] = held
+
+
+@compiled
+def _advance(cp: np.ndarray, x: np.ndarray, nx: int, level: float) -> None:
+    """One control period of the model: x = phi x + gamma u."""
+    x0, x1, x2 = x[0], x[1], x[2]
+    for i in range(nx):
+        row = P_PHI + 3 * i
+        x[i] = cp[row] * x0 + cp[row + 1] * x1 + cp[row + 2] * x2 + cp[P_GAMMA + i] * level
+
+
+@compiled
+def sent(cp: np.ndarray, cs: np.ndarray, level: float) -> None:
+    """The level sent goes into the dead time's queue; the one leaving it drives the model one
+    period on, to the next estimate's time."""
+    dead = int(cp[P_DEAD])
+    applied = level
+    if dead > 0:
+        at = int(cs[S_QIDX])
+        applied = cs[S_QUEUE + at]
+        cs[S_QUEUE + at] = level
+        cs[S_QIDX] = (at + 1) % dead
+    x = np.empty(3)
+    for i in range(3):
+        x[i] = cs[S_X + i]
+    _advance(cp, x, int(cp[P_NX]), applied)
+    for i in range(3):
+        cs[S_X + i] = x[i]
+
+
+@compiled
+def _response(cp: np.ndarray, x: np.ndarray, nx: int, first: float, then: float,
+              z: np.ndarray) -> None:
+    """The process-lagged feed at the end of each of the ``z.size`` periods from state ``x``
+    (changed): input ``first`` for one period, then ``then``."""
+    for j in range(z.size):
+        _advance(cp, x, nx, first if j == 0 else then)
+        z[j] = x[nx - 1]
+
+
+@compiled
+def step(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndarray) -> None:
+    """The level of least cost (the module's text)."""
+    ref = cp[C_REF]
+    nx = int(cp[P_NX])
+    g = cp[P_EXPONENT]
+    z_now = cs[S_X + nx - 1]
+    if z_now > 1.0 and force > cp[P_ENGAGED] * ref:
+        cs[S_GAIN] += cp[P_WEIGHT] * (force / z_now ** g - cs[S_GAIN])
+    k = cs[S_GAIN]
+    z_ref = (ref / k) ** (1.0 / g)
+    w = g * k * z_ref ** (g - 1.0)
+    horizon = int(cp[P_HORIZON])
+    # z_j = a_j + b_j u + c_j v: the free response after the dead time's levels (a), and the
+    # responses to the first move (b) and to the held tail (c).
+    x = np.empty(3)
+    for i in range(3):
+        x[i] = cs[S_X + i]
+    dead = int(cp[P_DEAD])
+    at = int(cs[S_QIDX])
+    for j in range(dead):
+        _advance(cp, x, nx, cs[S_QUEUE + (at + j) % dead])
+    a, b, c = np.empty(horizon), np.empty(horizon), np.empty(horizon)
+    _response(cp, x, nx, 0.0, 0.0, a)
+    x[:] = 0.0
+    _response(cp, x, nx, 1.0, 0.0, b)
+    x[:] = 0.0
+    _response(cp, x, nx, 0.0, 1.0, c)
+    cc = 0.0
+    for j in range(horizon):
+        cc += c[j] * c[j]
+    rho, held = cp[P_PENALTY], cs[CS_HELD]
+    best, best_cost = held, math.inf
+    for i in range(int(cp[P_COUNT])):
+        u = cp[P_LEVELS + i]
+        cost = rho * (u - held) * (u - held)
+        if cost >= best_cost:
+            continue
+        rc = 0.0
+        for j in range(horizon):
+            rc += c[j] * (z_ref - a[j] - b[j] * u)
+        v = min(max(rc / cc, cp[P_LOW]), cp[P_HIGH]) if cc > 0.0 else u
+        for j in range(horizon):
+            e = w * (a[j] + b[j] * u + c[j] * v - z_ref)
+            cost += e * e
+        if cost < best_cost:
+            best, best_cost = u, cost
+    out[OUT_PCT], out[OUT_ERR], out[OUT_S] = best, force - ref, 0.0
+
+
+LAW = Law('mpc', Settings, fill,
+          'finite-control-set model predictive control over the override levels')
