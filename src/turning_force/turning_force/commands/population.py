@@ -1,0 +1,168 @@
+"""A population of simulated machines, and the commissioning flow run on each: what "works on
+ordinary machines" means, measured.
+
+:func:`draw` makes machines from a seed, each parameter uniform in its range: PMC dead time 0-150
+ms; the feed servo first order (tau 0.1-0.35 s) for 70 % of them and second order (natural
+frequency 6-20 rad/s, damping 0.3-1.0) for 30 %; a Kienzle cutting exponent 0.6-1.0 with K_s
+scaled to keep Park's force at 0.2 mm/rev, then times 0.8-1.5; current noise 0.01-0.1 A, force
+noise 0-5 %; spindle 500-1500 rpm; tau_c 0.02-0.2 s; a job of steps, a taper, a long
+multi-step job, a deep step or an interrupted cut; and for a third of them a drift between
+commissioning and the job (dead time, process gain, friction or servo).
+
+:func:`commission` is the user's flow: the commissioning experiment recorded on the machine
+(``run --core --out``), ``identify`` with the job's depth range, and the identified settings
+laid over the job. :func:`run_job` cuts the job with any settings on the machine as it is
+then (drifted where it drifts).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from turning_force.core.experiment import Experiment, load_experiment
+from turning_force.core.identify import IdentifySettings
+from turning_force.core.kernel.simulate import simulate
+
+__all__ = ['JOBS', 'Machine', 'commission', 'draw', 'run_job']
+
+EXPERIMENTS = Path('config/experiments')   # the repository's, from its root
+PARK_KS_N_MM2 = 2200.0   # Park's steel at g = 1 (park1998_fig8.yaml)
+PARK_FEED_MM_REV = 0.2
+# The jobs: depth_times_s, depth_mm, interpolation, duration.
+JOBS: Mapping[str, tuple[tuple[float, ...], tuple[float, ...], str, float]] = {
+    'steps': ((0.0, 4.0, 8.0), (1.0, 2.0, 3.0), 'step', 12.0),
+    'taper': ((0.0, 12.0), (1.0, 2.5), 'linear', 12.0),
+    'long': ((0.0, 3.0, 6.0, 9.0, 12.0, 15.0, 18.0, 21.0),
+             (1.5, 2.5, 1.0, 3.0, 2.0, 1.2, 2.8, 1.8), 'step', 24.0),
+    'deep': ((0.0, 5.0), (1.0, 3.5), 'step', 10.0),
+    'interrupted': ((0.0, 3.0, 4.0, 7.0, 8.0), (2.0, 0.0, 2.0, 0.0, 2.0), 'step', 11.0),
+}
+DRIFTS = ('dead time', 'process gain', 'friction', 'servo')
+
+
+@dataclass(frozen=True)
+class Machine:
+    """One simulated machine: its ``lathe_sim`` settings, its job, and how it drifts."""
+
+    index: int
+    seed: int
+    plant: Mapping[str, Any]
+    job: str
+    drift: str = ''
+    drifted: Mapping[str, Any] = field(default_factory=dict)
+
+    def sets(self, *, after_drift: bool) -> list[str]:
+        """The machine as ``--set`` assignments (the spindle speed is every node's)."""
+        plant = {**self.plant, **(self.drifted if after_drift else {})}
+        spindle = plant.pop('spindle_speed_rpm')
+        return [f'/**.spindle_speed_rpm={spindle!r}',
+                *(f'lathe_sim.{key}={value!r}' for key, value in plant.items())]
+
+    def describe(self) -> str:
+        p = self.plant
+        servo = (f'servo {p["servo_time_constant_s"]:.2f} s' if p['servo_model'] == 'first_order'
+                 else f'servo {p["servo_natural_freq_rad_s"]:.1f} rad/s, zeta '
+                      f'{p["servo_damping"]:.2f}')
+        return (f'#{self.index} dead {p["pmc_dead_time_s"] * 1e3:.0f} ms, {servo}, g '
+                f'{p["cutting_exponent"]:.2f}, K_s {p["specific_cutting_force_n_mm2"]:.0f}, '
+                f'noise {p["current_noise_a"]:.3f} A + {p["force_noise_fraction"]:.1%}, '
+                f'{p["spindle_speed_rpm"]:.0f} rpm, tau_c {p["cutting_time_constant_s"]:.3f} s, '
+                f'job {self.job}' + (f', drift: {self.drift}' if self.drift else ''))
+
+
+def draw(count: int, seed: int) -> list[Machine]:
+    """``count`` machines from ``seed`` (the same seed, the same machines)."""
+    rng = np.random.default_rng(seed)
+    machines = []
+    for index in range(count):
+        g = float(rng.uniform(0.6, 1.0))
+        plant: dict[str, Any] = {
+            'seed': int(rng.integers(1, 2**31)),
+            'pmc_dead_time_s': round(float(rng.uniform(0.0, 0.15)), 3),
+            'cutting_exponent': round(g, 3),
+            'specific_cutting_force_n_mm2': round(
+                PARK_KS_N_MM2 * PARK_FEED_MM_REV ** (1.0 - g) * float(rng.uniform(0.8, 1.5)), 1),
+            'current_noise_a': round(float(rng.uniform(0.01, 0.1)), 4),
+            'force_noise_fraction': round(float(rng.uniform(0.0, 0.05)), 4),
+            'spindle_speed_rpm': round(float(rng.uniform(500.0, 1500.0)), 1),
+            'cutting_time_constant_s': round(float(rng.uniform(0.02, 0.2)), 3),
+        }
+        if rng.uniform() < 0.7:
+            plant.update(servo_model='first_order',
+                         servo_time_constant_s=round(float(rng.uniform(0.1, 0.35)), 3))
+        else:
+            plant.update(servo_model='second_order',
+                         servo_natural_freq_rad_s=round(float(rng.uniform(6.0, 20.0)), 2),
+                         servo_damping=round(float(rng.uniform(0.3, 1.0)), 3))
+        job = str(rng.choice(list(JOBS)))
+        drift, drifted = '', dict[str, Any]()
+        if rng.uniform() < 1.0 / 3.0:
+            drift, drifted = _drift(str(rng.choice(DRIFTS)), plant, rng)
+        machines.append(Machine(index, seed, plant, job, drift, drifted))
+    return machines
+
+
+def _drift(kind: str, plant: Mapping[str, Any],
+           rng: np.random.Generator) -> tuple[str, dict[str, Any]]:
+    factor = float(rng.uniform(1.2, 1.5))
+    if kind == 'dead time':
+        after = round(plant['pmc_dead_time_s'] + float(rng.uniform(0.02, 0.05)), 3)
+        return f'dead time to {after * 1e3:.0f} ms', {'pmc_dead_time_s': after}
+    if kind == 'process gain':
+        return (f'process gain x{factor:.2f}', {'specific_cutting_force_n_mm2': round(
+            plant['specific_cutting_force_n_mm2'] * factor, 1)})
+    if kind == 'friction':
+        return (f'friction x{factor:.2f}', {'friction_at_min_feed_a': round(0.3 * factor, 4),
+                                            'friction_at_max_feed_a': round(0.6 * factor, 4)})
+    if plant['servo_model'] == 'first_order':
+        return (f'servo x{factor:.2f} slower', {'servo_time_constant_s': round(
+            plant['servo_time_constant_s'] * factor, 3)})
+    return (f'servo x{factor:.2f} slower', {'servo_natural_freq_rad_s': round(
+        plant['servo_natural_freq_rad_s'] / factor, 2)})
+
+
+def job_experiment(machine: Machine, *, after_drift: bool = True,
+                   experiments: Path = EXPERIMENTS) -> Experiment:
+    """Park's Fig. 8 file with the machine's job and the machine (drifted where it drifts)."""
+    times, depths, interpolation, duration = JOBS[machine.job]
+    return load_experiment(experiments / 'park1998_fig8.yaml').with_sets([
+        *machine.sets(after_drift=after_drift), f'lathe_sim.depth_times_s={list(times)!r}',
+        f'lathe_sim.depth_mm={list(depths)!r}',
+        f'lathe_sim.depth_interpolation={interpolation}', f'experiment.duration_s={duration!r}',
+        f'experiment.name=machine_{machine.index}'])
+
+
+def commission(machine: Machine, experiments: Path = EXPERIMENTS) -> list[str]:
+    """The user's flow on ``machine`` before it drifts: the commissioning experiment recorded,
+    ``identify`` with the job's depth range; the identified settings as ``--set``
+    assignments."""
+    from turning_force.commands.core_session import record_core
+    from turning_force.session.identify import cut_depth_mm, identify_sessions
+
+    experiment = load_experiment(experiments / 'commissioning.yaml').with_sets(
+        machine.sets(after_drift=False))
+    cut = [d for d in JOBS[machine.job][1] if d > 0]
+    with tempfile.TemporaryDirectory() as folder:
+        session = Path(folder) / 'commissioning'
+        record_core(experiment, session)
+        ident, sessions = identify_sessions([session], IdentifySettings())
+        cut_depth = cut_depth_mm(sessions) or 1.0
+    low, high = ident.ksd_bounds_n_mm(0.1, (min(cut) / cut_depth, max(cut) / cut_depth))
+    sections: dict[str, Mapping[str, Any]] = {
+        'force_controller': ident.controller_parameters(low, high),
+        'force_estimator': ident.estimator_parameters()}
+    return [f'{node}.{key}={value!r}' if not isinstance(value, str) else f'{node}.{key}={value}'
+            for node, params in sections.items() for key, value in params.items()]
+
+
+def run_job(machine: Machine, sets: Sequence[str] = (),
+            experiments: Path = EXPERIMENTS) -> dict[str, float]:
+    """The job's metrics on the machine as it is at the job, with ``sets`` laid over."""
+    return simulate(job_experiment(machine, experiments=experiments).with_sets(
+        list(sets))).metrics

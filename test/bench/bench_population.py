@@ -1,0 +1,126 @@
+"""Commissioning on a population of simulated machines (issue 15): the fraction that ends in
+band after the user's flow (record commissioning.yaml, identify with the job's depths, cut the
+job with the identified settings), beside the uncommissioned defaults and the laws given the
+machine's true model (what a perfect identification would give each law).
+
+Band: steady error <= 5 N and ripple <= 25 N peak to peak (issue 15). Per machine, the steady
+error of each column; then per column the fraction in band and the median steady error; then the
+ten worst machines after commissioning, with their parameters. Seeds fixed and printed. Measures;
+asserts nothing.
+
+Run: ``.venv/bin/python test/bench/bench_population.py [--machines 200] [--seed 15] [--jobs 2]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+from turning_force.commands.population import Machine, commission, draw, run_job
+from turning_force.commands.robustness import PRODUCT
+from turning_force.core import kernel
+
+ROOT = Path(__file__).resolve().parents[2]
+EXPERIMENTS = ROOT / 'config' / 'experiments'
+BAND_STEADY_N, BAND_RIPPLE_N = 5.0, 25.0
+COLUMNS = ('defaults', 'smc commissioned', 'pi commissioned', 'mpc commissioned',
+           'smc true model', 'mpc true model')
+
+
+def true_model(machine: Machine) -> list[str]:
+    """The force_controller's model of the machine as it is at the job."""
+    p = {**machine.plant, **machine.drifted}
+    sets = [f'force_controller.model_dead_time_s={p["pmc_dead_time_s"]!r}',
+            f'force_controller.model_servo_model={p["servo_model"]}',
+            f'force_controller.model_cutting_time_constant_s={p["cutting_time_constant_s"]!r}',
+            f'force_controller.model_cutting_exponent={p["cutting_exponent"]!r}']
+    if p['servo_model'] == 'first_order':
+        sets.append(f'force_controller.model_servo_time_constant_s='
+                    f'{p["servo_time_constant_s"]!r}')
+    else:
+        sets += [f'force_controller.model_servo_natural_freq_rad_s='
+                 f'{p["servo_natural_freq_rad_s"]!r}',
+                 f'force_controller.model_servo_damping={p["servo_damping"]!r}',
+                 f'force_controller.model_servo_time_constant_s='
+                 f'{2.0 * p["servo_damping"] / p["servo_natural_freq_rad_s"]!r}']
+    return sets
+
+
+def evaluate(machine: Machine) -> dict[str, tuple[float, float]]:
+    """(steady, ripple) of each column on ``machine``."""
+    kernel.load()
+    try:
+        identified = commission(machine, EXPERIMENTS)
+    except Exception as exc:   # a refusal is a result: the column says so
+        print(f'#{machine.index}: commissioning failed: {exc}', file=sys.stderr)
+        identified = None
+    truth = true_model(machine)
+    runs = {
+        'defaults': list(PRODUCT),
+        'smc commissioned': None if identified is None else [*PRODUCT, *identified],
+        'pi commissioned': None if identified is None else [
+            *PRODUCT, *identified, 'force_controller.controller=pi'],
+        'mpc commissioned': None if identified is None else [
+            *PRODUCT, *identified, 'force_controller.controller=mpc'],
+        'smc true model': [*PRODUCT, *truth],
+        'mpc true model': [*PRODUCT, *truth, 'force_controller.controller=mpc'],
+    }
+    out = {}
+    for column, sets in runs.items():
+        if sets is None:
+            out[column] = (float('nan'), float('nan'))
+            continue
+        m = run_job(machine, sets, EXPERIMENTS)
+        out[column] = (m.get('steady_mean_abs_error_n', float('nan')),
+                       m.get('ripple_p2p_n', float('nan')))
+    return out
+
+
+def in_band(steady: float, ripple: float) -> bool:
+    return steady <= BAND_STEADY_N and ripple <= BAND_RIPPLE_N
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--machines', type=int, default=200)
+    parser.add_argument('--seed', type=int, default=15)
+    parser.add_argument('--jobs', type=int, default=2)
+    args = parser.parse_args()
+    kernel.load()
+    machines = draw(args.machines, args.seed)
+    print(f'{args.machines} machines from seed {args.seed}; band: steady <= {BAND_STEADY_N:g} N '
+          f'and ripple <= {BAND_RIPPLE_N:g} N p-p; {args.jobs} processes\n')
+    start = time.perf_counter()
+    with ProcessPoolExecutor(args.jobs) as pool:
+        results = list(pool.map(evaluate, machines))
+    took = time.perf_counter() - start
+    print('steady error [N] per machine:')
+    print(f'{"machine":>8s} ' + ' '.join(f'{c:>18s}' for c in COLUMNS))
+    for machine, result in zip(machines, results, strict=True):
+        cells = ' '.join(f'{result[c][0]:14.2f} {"in " if in_band(*result[c]) else "out"}'
+                         for c in COLUMNS)
+        print(f'{machine.index:8d} {cells}')
+    print(f'\n{"column":20s} {"in band":>10s} {"median steady N":>16s}')
+    for column in COLUMNS:
+        values = [r[column] for r in results]
+        band = sum(in_band(*v) for v in values)
+        steady = [v[0] for v in values if v[0] == v[0]]
+        print(f'{column:20s} {band:4d} / {len(values):<4d} '
+              f'{statistics.median(steady) if steady else float("nan"):16.2f}')
+    worst = sorted(zip(machines, results, strict=True),
+                   key=lambda mr: -(mr[1]['smc commissioned'][0]
+                                    if mr[1]['smc commissioned'][0] == mr[1]['smc commissioned'][0]
+                                    else 1e9))[:10]
+    print('\nthe ten worst after commissioning (smc):')
+    for machine, result in worst:
+        steady, ripple = result['smc commissioned']
+        print(f'  {steady:8.2f} N steady, {ripple:7.1f} N ripple: {machine.describe()}')
+    print(f'\n{took:.0f} s for {args.machines} machines')
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,55 @@
+"""The population of simulated machines (commands/population.py): seeded, inside the issue's
+ranges, every job and drift a valid experiment, and the commissioning flow runs end to end."""
+
+from __future__ import annotations
+
+import math
+
+from turning_force.commands.population import JOBS, commission, draw, job_experiment, run_job
+
+
+def test_the_same_seed_draws_the_same_machines_and_another_seed_others():
+    assert draw(20, 7) == draw(20, 7)
+    assert draw(20, 7) != draw(20, 8)
+
+
+def test_every_parameter_is_inside_its_range():
+    machines = draw(300, 3)
+    for m in machines:
+        p = m.plant
+        assert 0.0 <= p['pmc_dead_time_s'] <= 0.15
+        assert 0.6 <= p['cutting_exponent'] <= 1.0
+        # K_s keeps Park's force at 0.2 mm/rev (2200 N/mm^2 x 0.2 mm/rev at g = 1), x0.8-1.5.
+        at_park = p['specific_cutting_force_n_mm2'] * 0.2 ** p['cutting_exponent'] / (2200 * 0.2)
+        assert 0.8 - 1e-3 <= at_park <= 1.5 + 1e-3
+        assert 0.01 <= p['current_noise_a'] <= 0.1 and 0.0 <= p['force_noise_fraction'] <= 0.05
+        assert 500.0 <= p['spindle_speed_rpm'] <= 1500.0
+        assert 0.02 <= p['cutting_time_constant_s'] <= 0.2
+        if p['servo_model'] == 'first_order':
+            assert 0.1 <= p['servo_time_constant_s'] <= 0.35
+        else:
+            assert 6.0 <= p['servo_natural_freq_rad_s'] <= 20.0
+            assert 0.3 <= p['servo_damping'] <= 1.0
+    # 70 % first-order servos and a third drifting, within what 300 draws allow (3 sd).
+    first = sum(m.plant['servo_model'] == 'first_order' for m in machines) / len(machines)
+    drifting = sum(bool(m.drift) for m in machines) / len(machines)
+    assert abs(first - 0.7) < 3 * math.sqrt(0.7 * 0.3 / 300)
+    assert abs(drifting - 1 / 3) < 3 * math.sqrt(2 / 9 / 300)
+    assert {m.job for m in machines} == set(JOBS)
+
+
+def test_every_machine_is_a_valid_experiment_before_and_after_its_drift(experiments_dir):
+    for m in draw(40, 11):
+        before = job_experiment(m, after_drift=False, experiments=experiments_dir)
+        after = job_experiment(m, experiments=experiments_dir)
+        assert before.plant.pmc_dead_time_s == m.plant['pmc_dead_time_s']
+        assert (before.plant == after.plant) == (not m.drift)
+
+
+def test_the_commissioning_flow_runs_on_a_machine(experiments_dir):
+    machine = draw(1, 15)[0]
+    identified = commission(machine, experiments_dir)
+    assert any(s.startswith('force_controller.model_dead_time_s=') for s in identified)
+    assert any(s.startswith('force_estimator.kalman_force_noise_n=') for s in identified)
+    metrics = run_job(machine, identified, experiments_dir)
+    assert math.isfinite(metrics['steady_mean_abs_error_n'])
