@@ -42,6 +42,15 @@ MACHINES = {
                                       'lathe_sim.cutting_time_constant_s=0.03',
                                       'lathe_sim.current_noise_a=0.05',
                                       'lathe_sim.force_noise_fraction=0.05'],
+    # Kienzle materials (issue 15): the force a curve in the feed, K_s set so that Park's
+    # 0.2 mm/rev still gives his force (2200 x 0.2^(1 - g)).
+    'kienzle_0p75': ['lathe_sim.cutting_exponent=0.75',
+                     'lathe_sim.specific_cutting_force_n_mm2=1471.0'],
+    'kienzle_0p6_noisy_dead_time': ['lathe_sim.cutting_exponent=0.6',
+                                    'lathe_sim.specific_cutting_force_n_mm2=1153.0',
+                                    'lathe_sim.pmc_dead_time_s=0.1',
+                                    'lathe_sim.current_noise_a=0.1',
+                                    'lathe_sim.force_noise_fraction=0.05'],
 }
 
 
@@ -62,6 +71,9 @@ def test_identify_recovers_the_simulated_machine(experiments_dir, machine):
         if name in truth:
             assert ident.servo[name].value == pytest.approx(truth[name], rel=0.10), name
     assert ident.ksd_n_mm.value == pytest.approx(truth['ksd_n_mm'], rel=0.10)
+    # The exponent: the staircase's feeds span 20-150 %; 0.05 is a tenth of the range g takes.
+    exponent = ident.process['cutting_exponent']
+    assert abs(exponent.value - truth['cutting_exponent']) <= 0.05
     tau_c = ident.process['cutting_time_constant_s']
     assert tau_c.value == pytest.approx(truth['cutting_time_constant_s'], rel=0.10)
     assert ident.force_noise_n.value == pytest.approx(truth['force_noise_n'], rel=0.10)
@@ -74,7 +86,8 @@ def test_identify_recovers_the_simulated_machine(experiments_dir, machine):
     np.testing.assert_allclose(feeds, [24.0, 180.0])
     # The fits work on noisy signals: their standard deviations must be honest, the error
     # within a few of them. (With a noise-free feed reading, the servo's are ~0: not checked.)
-    checked = [(ident.ksd_n_mm, truth['ksd_n_mm']), (tau_c, truth['cutting_time_constant_s'])]
+    checked = [(ident.ksd_n_mm, truth['ksd_n_mm']), (tau_c, truth['cutting_time_constant_s']),
+               (exponent, truth['cutting_exponent'])]
     if experiment.plant.feed_noise_mm_min > 0:
         checked += [(ident.servo[name], truth[name]) for name in ident.servo.parameters]
     for estimate, true in checked:
@@ -89,8 +102,13 @@ def test_parameters_for_the_controller_and_the_estimator(experiments_dir):
     ident = identify([record(experiment).recording])
     low, high = ident.ksd_bounds_n_mm(margin=0.1)
     ksd = ident.ksd_n_mm.value
-    # Geometric about the estimate: Park's b_hat = sqrt(b_min b_max) (Eq. 8) is the estimate.
-    assert np.sqrt(low * high) == pytest.approx(ksd) and high / low == pytest.approx(1.1**2)
+    # Geometric about the estimate: Park's b_hat = sqrt(b_min b_max) (Eq. 8) is the estimate,
+    # widened by the secant of F = G v^g over 30-150 % (1 on this linear plant to within the
+    # exponent's estimate).
+    g = ident.process['cutting_exponent'].value
+    secants = (0.3 ** (g - 1.0), 1.5 ** (g - 1.0))
+    assert np.sqrt(low * high) == pytest.approx(ksd * np.sqrt(min(secants) * max(secants)))
+    assert high / low == pytest.approx(1.1**2 * max(secants) / min(secants))
     low3, high3 = ident.ksd_bounds_n_mm(margin=0.1, depth_scale=(1.0, 3.0))
     assert (low3, high3) == pytest.approx((low, 3.0 * high))
     controller = ident.controller_parameters(low, high)

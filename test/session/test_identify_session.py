@@ -71,9 +71,17 @@ def test_identify_writes_parameters_that_run_loads(commissioning, capfd, tmp_pat
     ksd = result['process']['parameters']['ksd_n_mm']
     assert ksd['value'] == pytest.approx(2200.0 * 1.1, rel=0.1) and ksd['std'] > 0
     assert result['cut_depth_mm'] == 1.0
-    # Bounds for depths of 1 to 3 mm, the commissioning cut 1 mm deep, 10 % either side.
-    assert controller['smc_ksd_min_n_mm'] == pytest.approx(ksd['value'] / 1.1, rel=1e-6)
-    assert controller['smc_ksd_max_n_mm'] == pytest.approx(ksd['value'] * 3 * 1.1, rel=1e-6)
+    # A linear plant (Park's steel): the exponent is 1 within its uncertainty.
+    g = result['process']['parameters']['cutting_exponent']
+    assert abs(g['value'] - 1.0) < max(3 * g['std'], 0.01)
+    assert controller['model_cutting_exponent'] == g['value']
+    # Bounds for depths of 1 to 3 mm, the commissioning cut 1 mm deep, 10 % either side, and
+    # the secant of F = G v^g over 30-150 % (a factor 1 +- 0.3 |g - 1| or so).
+    secants = (0.3 ** (g['value'] - 1.0), 1.5 ** (g['value'] - 1.0))
+    assert controller['smc_ksd_min_n_mm'] == pytest.approx(
+        ksd['value'] / 1.1 * min(secants), rel=1e-6)
+    assert controller['smc_ksd_max_n_mm'] == pytest.approx(
+        ksd['value'] * 3 * 1.1 * max(secants), rel=1e-6)
     assert estimator['friction_min_feed_mm_min'] == 24.0
     assert set(result['servo_candidates']) == {'first_order', 'second_order'}
 

@@ -40,7 +40,8 @@ class CoreRecording:
     def truth(self) -> dict[str, float]:
         """What identification should find: the simulator's own values.
 
-        The dead time as the plant applies it (whole samples); ``ksd_n_mm`` at the deepest cut;
+        The dead time as the plant applies it (whole samples); ``ksd_n_mm`` at the deepest cut,
+        Park's linear one: the secant of ``F = K_s d f^g`` at the programmed feed;
         ``force_noise_n`` the standard deviation of one friction-compensated force sample in
         the cut: the current noise through the d-q transform at the angles the rotor had
         (``var i_q = sigma^2 (sin^2 - 2 sin cos / sqrt 3 + 5/3 cos^2)``, from the Clarke
@@ -58,7 +59,9 @@ class CoreRecording:
                      + (p.force_noise_fraction * self.force_n[cut]) ** 2 / 3.0)
         out = {
             'dead_time_s': round(p.pmc_dead_time_s / dt) * dt,
-            'ksd_n_mm': p.specific_cutting_force_n_mm2 * float(np.max(self.depth_mm)),
+            'ksd_n_mm': (p.specific_cutting_force_n_mm2 * float(np.max(self.depth_mm))
+                         * p.programmed_feed_mm_rev ** (p.cutting_exponent - 1.0)),
+            'cutting_exponent': p.cutting_exponent,
             'cutting_time_constant_s': p.cutting_time_constant_s,
             'force_noise_n': float(np.sqrt(np.mean(force_var))) if force_var.size else 0.0,
         }
