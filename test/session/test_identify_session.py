@@ -140,10 +140,27 @@ def test_a_bad_session_is_one_line_naming_the_bag_and_exit_2(case, capfd, tmp_pa
     bag = tmp_path / case
     run_lockstep(experiment, bag)
     capfd.readouterr()
-    assert main(['identify', str(bag)]) == 2
+    assert main(['identify', str(bag), '--depths-mm', '1:3']) == 2
     err = capfd.readouterr().err
     assert err == f'turning-force: {bag}: {message}' + err.split(message, 1)[1]
     assert err.count('\n') == 1
+
+
+def test_identify_refuses_without_the_jobs_depths(commissioning, capfd, tmp_path):
+    # Issue 15: without the job's depth range identify tuned to the commissioning cut's depth
+    # and the job ran at 40.8 N steady against 1.2 N. Now it refuses, and says with what.
+    assert main(['identify', str(commissioning)]) == 2
+    err = capfd.readouterr().err
+    assert "the job's depths of cut are needed: --depths-mm MIN:MAX or --job" in err
+    # A job file gives them: fig8 cuts 1-3 mm, as --depths-mm 1:3 does.
+    out_job, out_range = tmp_path / 'job.yaml', tmp_path / 'range.yaml'
+    assert main(['identify', str(commissioning), '--job',
+                 str(EXPERIMENTS / 'park1998_fig8.yaml'), '--out', str(out_job)]) == 0
+    assert main(['identify', str(commissioning), '--depths-mm', '1:3',
+                 '--out', str(out_range)]) == 0
+    # The same file but its first line (the command that wrote it).
+    assert out_job.read_text().splitlines()[1:] == out_range.read_text().splitlines()[1:]
+    assert 'For jobs cutting 1-3 mm deep' in out_job.read_text()
 
 
 def test_calibrate_map_without_a_dynamometer_exit_2(capfd):

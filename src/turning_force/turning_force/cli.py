@@ -517,16 +517,15 @@ def _identify(args: argparse.Namespace) -> int:
     from turning_force.core.identify import IdentifySettings
     from turning_force.session.identify import cut_depth_mm, format_parameters, identify_sessions
 
-    depths = _parse_range(args.depths_mm, '--depths-mm')
+    depths = _job_depths(args)
     settings = IdentifySettings(cut_force_n=args.cut_force_n)
     ident, sessions = identify_sessions(args.bags, settings)
     scale = (1.0, 1.0)
     cut_depth = args.cut_depth_mm or cut_depth_mm(sessions)
-    if depths is not None:
-        if cut_depth is None:
-            raise TurningForceError('--depths-mm needs --cut-depth-mm: the sessions do not say '
-                                    'how deep the commissioning cut was')
-        scale = (depths[0] / cut_depth, depths[1] / cut_depth)
+    if cut_depth is None:
+        raise TurningForceError('--depths-mm needs --cut-depth-mm: the sessions do not say '
+                                'how deep the commissioning cut was')
+    scale = (depths[0] / cut_depth, depths[1] / cut_depth)
     low, high = ident.ksd_bounds_n_mm(args.ksd_margin, scale)
     controller = ident.controller_parameters(low, high)
     estimator = ident.estimator_parameters()
@@ -543,7 +542,10 @@ def _identify(args: argparse.Namespace) -> int:
         f'{ident.ksd_n_mm.std:.2g} N/mm; tau_c '
         f'{ident.process["cutting_time_constant_s"].value * 1e3:.1f} ms',
         f'smc_ksd bounds: K_s d / (1 + m) to K_s d (1 + m), m = max({args.ksd_margin:g}, 3 sd)'
-        + (f', scaled to depths {depths[0]:g}-{depths[1]:g} mm' if depths else ''),
+        f', scaled to depths {depths[0]:g}-{depths[1]:g} mm; cutting exponent g '
+        f'{ident.process["cutting_exponent"].value:.3f}',
+        f'For jobs cutting {depths[0]:g}-{depths[1]:g} mm deep (identify --depths-mm or --job): '
+        'another depth range, identify again',
         'Load with: turning-force run EXPERIMENT.yaml --params THIS_FILE',
         '       or: ros2 run ... --params-file EXPERIMENT.yaml --params-file THIS_FILE']
     text = format_parameters({'force_controller': controller, 'force_estimator': estimator},
@@ -557,6 +559,28 @@ def _identification_json(ident: Any, controller: dict[str, Any], estimator: dict
     # Every fit with its parameters (value, std, unit), residual, samples and BIC.
     return {**dataclasses.asdict(ident), 'cut_depth_mm': cut_depth,
             'force_controller': controller, 'force_estimator': estimator}
+
+
+def _job_depths(args: argparse.Namespace) -> tuple[float, float]:
+    """The job's depth range: --depths-mm, or the --job file's cutting depths. Without
+    either, identification would tune to the commissioning cut's depth alone, and a job cut
+    deeper or shallower sees bounds on K_s d that do not hold (issue 15: 40.8 N steady against
+    1.2 N with the job's range)."""
+    if args.job and args.depths_mm:
+        raise TurningForceError('identify: --depths-mm or --job, not both')
+    if args.job:
+        from turning_force.core.experiment import load_experiment
+
+        cut = [d for d in load_experiment(args.job).plant.depth_mm if d > 0]
+        if not cut:
+            raise TurningForceError(f'{args.job}: lathe_sim.depth_mm: the job never cuts')
+        return min(cut), max(cut)
+    depths = _parse_range(args.depths_mm, '--depths-mm')
+    if depths is None:
+        raise TurningForceError("identify: the job's depths of cut are needed: --depths-mm "
+                                'MIN:MAX or --job EXPERIMENT.yaml (the K_s d bounds and the '
+                                "laws' model scale with the depth)")
+    return depths
 
 
 def _print_identification(ident: Any, ksd_min: float, ksd_max: float, margin: float,
@@ -584,7 +608,8 @@ def _print_identification(ident: Any, ksd_min: float, ksd_max: float, margin: fl
     print(f'cutting process, Park Eq. 1 (force against feed in the cut): residual '
           f'{process.residual_rms:.3g} N ({process.samples} samples)')
     print(line('K_s d', process['ksd_n_mm'], 1.0, 'N/mm'))
-    print(line('K_s d / N', process['gain_n_per_mm_min'], 1.0, 'N/(mm/min)'))
+    print(line('cutting exponent g (F ~ f^g)', process['cutting_exponent']))
+    print(line('G = K_s d / N^g', process['gain_n_per_mm_min'], 1.0, 'N/(mm/min)^g'))
     if cut_depth:
         ksd = process['ksd_n_mm']
         print(f'  {"K_s (cut " + f"{cut_depth:g}" + " mm deep)":30s} {ksd.value / cut_depth:10.4g}'
@@ -749,8 +774,11 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument('--ksd-margin', type=float, default=0.1,
                        help='SMC K_s d bounds: at least this fraction either side [-]')
     ident.add_argument('--depths-mm', metavar='MIN:MAX',
-                       help='depths of cut the controller will see: the K_s d bounds scale '
-                       'with them (K_s d is proportional to d)')
+                       help="the job's depths of cut (required, or --job): the K_s d bounds "
+                       'scale with them (K_s d is proportional to d)')
+    ident.add_argument('--job', metavar='EXPERIMENT.yaml',
+                       help='the job the settings are for: its depths of cut (instead of '
+                       '--depths-mm)')
     ident.add_argument('--cut-depth-mm', type=float,
                        help='depth of the commissioning cut (known from a simulated session)')
     ident.add_argument('--json', action='store_true', help='print one JSON object')
