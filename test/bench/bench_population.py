@@ -1,6 +1,7 @@
 """Commissioning on a population of simulated machines (issue 15): the fraction that ends in
-band after the user's flow (record commissioning.yaml, identify with the job's depths, cut the
-job with the identified settings), beside the uncommissioned defaults and the laws given the
+band after the user's flow (record commissioning.yaml, identify with the job's depths and verify
+in closed loop on the job, cut the job with what identify chose), beside the uncommissioned
+defaults, the sliding mode and predictive laws with the identified model, and both with the
 machine's true model (what a perfect identification would give each law).
 
 Band: steady error <= 5 N and ripple <= 25 N peak to peak (issue 15). Per machine, the steady
@@ -19,6 +20,7 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 from turning_force.commands.population import Machine, commission, draw, run_job
 from turning_force.commands.robustness import PRODUCT
@@ -27,8 +29,11 @@ from turning_force.core import kernel
 ROOT = Path(__file__).resolve().parents[2]
 EXPERIMENTS = ROOT / 'config' / 'experiments'
 BAND_STEADY_N, BAND_RIPPLE_N = 5.0, 25.0
-COLUMNS = ('defaults', 'smc commissioned', 'pi commissioned', 'mpc commissioned',
-           'smc true model', 'mpc true model')
+COLUMNS = ('defaults', 'commissioned', 'smc identified', 'mpc identified', 'smc true model',
+           'mpc true model')
+SMC = ('force_controller.controller=smc', 'force_controller.smc_surface=integral',
+       'force_controller.smc_epsilon_n=0.0')
+MPC = ('force_controller.controller=mpc',)
 
 
 def true_model(machine: Machine) -> list[str]:
@@ -51,25 +56,24 @@ def true_model(machine: Machine) -> list[str]:
 
 
 def evaluate(machine: Machine) -> dict[str, tuple[float, float]]:
-    """(steady, ripple) of each column on ``machine``."""
+    """(steady, ripple) of each column on ``machine``; under 'chosen', identify's choice and
+    its predicted steady error on the identified plant."""
     kernel.load()
     try:
-        identified = commission(machine, EXPERIMENTS)
+        done = commission(machine, EXPERIMENTS)
     except Exception as exc:   # a refusal is a result: the column says so
         print(f'#{machine.index}: commissioning failed: {exc}', file=sys.stderr)
-        identified = None
+        done = None
     truth = true_model(machine)
     runs = {
         'defaults': list(PRODUCT),
-        'smc commissioned': None if identified is None else [*PRODUCT, *identified],
-        'pi commissioned': None if identified is None else [
-            *PRODUCT, *identified, 'force_controller.controller=pi'],
-        'mpc commissioned': None if identified is None else [
-            *PRODUCT, *identified, 'force_controller.controller=mpc'],
-        'smc true model': [*PRODUCT, *truth],
-        'mpc true model': [*PRODUCT, *truth, 'force_controller.controller=mpc'],
+        'commissioned': None if done is None else list(done.chosen.sets),
+        'smc identified': None if done is None else [*done.identified, *SMC],
+        'mpc identified': None if done is None else [*done.identified, *MPC],
+        'smc true model': [*truth, *SMC],
+        'mpc true model': [*truth, *MPC],
     }
-    out = {}
+    out: dict[str, Any] = {}
     for column, sets in runs.items():
         if sets is None:
             out[column] = (float('nan'), float('nan'))
@@ -77,6 +81,8 @@ def evaluate(machine: Machine) -> dict[str, tuple[float, float]]:
         m = run_job(machine, sets, EXPERIMENTS)
         out[column] = (m.get('steady_mean_abs_error_n', float('nan')),
                        m.get('ripple_p2p_n', float('nan')))
+    out['chosen'] = ('failed', float('nan')) if done is None else (done.chosen.name,
+                                                                   done.chosen.steady_n)
     return out
 
 
@@ -99,11 +105,13 @@ def main() -> None:
         results = list(pool.map(evaluate, machines))
     took = time.perf_counter() - start
     print('steady error [N] per machine:')
-    print(f'{"machine":>8s} ' + ' '.join(f'{c:>18s}' for c in COLUMNS))
+    print(f'{"machine":>8s} ' + ' '.join(f'{c:>18s}' for c in COLUMNS)
+          + '   identify chose (predicted steady)')
     for machine, result in zip(machines, results, strict=True):
         cells = ' '.join(f'{result[c][0]:14.2f} {"in " if in_band(*result[c]) else "out"}'
                          for c in COLUMNS)
-        print(f'{machine.index:8d} {cells}')
+        chosen, predicted = result['chosen']
+        print(f'{machine.index:8d} {cells}   {chosen} ({predicted:.2f} N)')
     print(f'\n{"column":20s} {"in band":>10s} {"median steady N":>16s}')
     for column in COLUMNS:
         values = [r[column] for r in results]
@@ -112,12 +120,12 @@ def main() -> None:
         print(f'{column:20s} {band:4d} / {len(values):<4d} '
               f'{statistics.median(steady) if steady else float("nan"):16.2f}')
     worst = sorted(zip(machines, results, strict=True),
-                   key=lambda mr: -(mr[1]['smc commissioned'][0]
-                                    if mr[1]['smc commissioned'][0] == mr[1]['smc commissioned'][0]
+                   key=lambda mr: -(mr[1]['commissioned'][0]
+                                    if mr[1]['commissioned'][0] == mr[1]['commissioned'][0]
                                     else 1e9))[:10]
-    print('\nthe ten worst after commissioning (smc):')
+    print('\nthe ten worst after commissioning:')
     for machine, result in worst:
-        steady, ripple = result['smc commissioned']
+        steady, ripple = result['commissioned']
         print(f'  {steady:8.2f} N steady, {ripple:7.1f} N ripple: {machine.describe()}')
     print(f'\n{took:.0f} s for {args.machines} machines')
 

@@ -48,8 +48,16 @@ def test_every_machine_is_a_valid_experiment_before_and_after_its_drift(experime
 
 def test_the_commissioning_flow_runs_on_a_machine(experiments_dir):
     machine = draw(1, 15)[0]
-    identified = commission(machine, experiments_dir)
-    assert any(s.startswith('force_controller.model_dead_time_s=') for s in identified)
-    assert any(s.startswith('force_estimator.kalman_force_noise_n=') for s in identified)
-    metrics = run_job(machine, identified, experiments_dir)
+    done = commission(machine, experiments_dir, plants=5)
+    assert any(s.startswith('force_controller.model_dead_time_s=') for s in done.identified)
+    assert any(s.startswith('force_estimator.kalman_force_noise_n=') for s in done.identified)
+    # The verification ran every candidate and chose one holding no fewer plants than the
+    # defaults; its settings are the identified ones and the law's.
+    names = {p.name for p in done.predictions}
+    assert {'smc', 'mpc', 'pi', 'defaults'} <= names
+    defaults = next(p for p in done.predictions if p.name == 'defaults')
+    assert done.chosen.in_band >= defaults.in_band
+    assert done.chosen.name == 'defaults' or done.chosen.sets[:len(done.identified)] == \
+        done.identified
+    metrics = run_job(machine, done.chosen.sets, experiments_dir)
     assert math.isfinite(metrics['steady_mean_abs_error_n'])

@@ -158,8 +158,12 @@ def test_identify_refuses_without_the_jobs_depths(commissioning, capfd, tmp_path
                  str(EXPERIMENTS / 'park1998_fig8.yaml'), '--out', str(out_job)]) == 0
     assert main(['identify', str(commissioning), '--depths-mm', '1:3',
                  '--out', str(out_range)]) == 0
-    # The same file but its first line (the command that wrote it).
-    assert out_job.read_text().splitlines()[1:] == out_range.read_text().splitlines()[1:]
+    # The same identified parameters (the predictions differ: each is verified on its job).
+    def parameters(path):
+        return [line for line in path.read_text().splitlines() if not line.startswith('#')
+                and 'controller:' not in line and 'kalman_force_noise_n' not in line]
+
+    assert parameters(out_job) == parameters(out_range)
     assert 'For jobs cutting 1-3 mm deep' in out_job.read_text()
 
 

@@ -22,7 +22,7 @@ import math
 import signal
 import sys
 import tempfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -192,7 +192,24 @@ def _run(args: argparse.Namespace) -> int:
         print(f'  session: {out["session"]} (`turning-force report` draws it)')
     _print_metrics('metrics' + (' (core loop)' if args.core else ' (from the session)'),
                    metrics)
+    predicted = _prediction(args.params)
+    if predicted is not None:
+        print(f'identify predicted for {predicted["law"]} on the identified plant / this run:')
+        for key, metric in (('steady_n', 'steady_mean_abs_error_n'),
+                            ('mean_n', 'mean_abs_error_n'), ('ripple_n', 'ripple_p2p_n')):
+            print(f'  {metric:30s} {predicted[key]:8.3f} / {metrics.get(metric, math.nan):8.3f}')
     return 0
+
+
+def _prediction(params: Sequence[str] | str | None) -> dict[str, Any] | None:
+    """The prediction ``identify`` wrote into a parameters file's header, if one is given."""
+    files = [params] if isinstance(params, str) else list(params or [])
+    for name in files:
+        for line in Path(name).read_text().splitlines():
+            if line.startswith(f'# {PREDICTION} '):
+                found: dict[str, Any] = json.loads(line.split(' ', 2)[2])
+                return found
+    return None
 
 
 def _replay(args: argparse.Namespace) -> int:
@@ -515,24 +532,45 @@ def _parse_range(text: str | None, option: str) -> tuple[float, float] | None:
 
 def _identify(args: argparse.Namespace) -> int:
     from turning_force.core.identify import IdentifySettings
+    from turning_force.core.verification import verify
     from turning_force.session.identify import cut_depth_mm, format_parameters, identify_sessions
 
     depths = _job_depths(args)
     settings = IdentifySettings(cut_force_n=args.cut_force_n)
     ident, sessions = identify_sessions(args.bags, settings)
-    scale = (1.0, 1.0)
     cut_depth = args.cut_depth_mm or cut_depth_mm(sessions)
     if cut_depth is None:
         raise TurningForceError('--depths-mm needs --cut-depth-mm: the sessions do not say '
                                 'how deep the commissioning cut was')
     scale = (depths[0] / cut_depth, depths[1] / cut_depth)
     low, high = ident.ksd_bounds_n_mm(args.ksd_margin, scale)
-    controller = ident.controller_parameters(low, high)
-    estimator = ident.estimator_parameters()
+    job = _verification_job(args, sessions[0].experiment, depths)
+    controller: dict[str, Any] = dict(ident.controller_parameters(low, high))
+    estimator: dict[str, Any] = dict(
+        ident.estimator_parameters(job.controller.reference_force_n))
+    identified = [*_as_sets('force_controller', controller),
+                  *_as_sets('force_estimator', estimator)]
+    predictions = verify(job, ident, identified, cut_depth, plants=args.plants)
+    chosen = predictions[0]
+    for assignment in chosen.sets[len(identified):]:
+        node, _, rest = assignment.partition('.')
+        key, _, value = rest.partition('=')
+        (controller if node == 'force_controller' else estimator)[key] = _set_value(value)
+    sections = ({'force_controller': controller, 'force_estimator': estimator}
+                if chosen.name != 'defaults' else {})
     if args.json:
-        print(json.dumps(_identification_json(ident, controller, estimator, cut_depth)))
+        print(json.dumps({**_identification_json(ident, controller, estimator, cut_depth),
+                          'predictions': [dataclasses.asdict(p) for p in predictions],
+                          'chosen': chosen.name}))
     else:
         _print_identification(ident, low, high, args.ksd_margin, depths, cut_depth)
+        print(f'closed-loop verification on {job.run.name} ({chosen.plants} plants: the '
+              'identified one and plants drawn about it; band: steady <= 5 N, ripple <= 25 N):')
+        for prediction in predictions:
+            print(f'  {prediction.line()}')
+        print(f'chosen: {chosen.name}'
+              + (' (no candidate holds more plants than the uncommissioned defaults: none of the'
+                 ' identified settings is written)' if chosen.name == 'defaults' else ''))
     servo = ident.servo
     header = [
         f'turning-force identify {" ".join(map(str, args.bags))}',
@@ -546,12 +584,46 @@ def _identify(args: argparse.Namespace) -> int:
         f'{ident.process["cutting_exponent"].value:.3f}',
         f'For jobs cutting {depths[0]:g}-{depths[1]:g} mm deep (identify --depths-mm or --job): '
         'another depth range, identify again',
+        *(f'predicted {p.line()}' for p in predictions),
+        f'{PREDICTION} ' + json.dumps({'law': chosen.name, 'steady_n': chosen.steady_n,
+                                        'mean_n': chosen.mean_n, 'ripple_n': chosen.ripple_n,
+                                        'in_band': chosen.in_band, 'plants': chosen.plants}),
         'Load with: turning-force run EXPERIMENT.yaml --params THIS_FILE',
         '       or: ros2 run ... --params-file EXPERIMENT.yaml --params-file THIS_FILE']
-    text = format_parameters({'force_controller': controller, 'force_estimator': estimator},
-                             header)
+    text = format_parameters(sections, header)
     _emit_parameters(text, args)
     return 0
+
+
+PREDICTION = 'prediction:'   # the header line `identify` writes and `run --params` reads
+
+
+def _as_sets(node: str, params: Mapping[str, Any]) -> list[str]:
+    return [f'{node}.{key}={value if isinstance(value, str) else repr(value)}'
+            for key, value in params.items()]
+
+
+def _set_value(text: str) -> Any:
+    from turning_force.core.yamlfile import load_yaml
+
+    return load_yaml(text)
+
+
+def _verification_job(args: argparse.Namespace, commissioning: Any,
+                      depths: tuple[float, float]) -> Any:
+    """The job the settings are verified on: --job's file, or the commissioning machine
+    regulating a three-step job over --depths-mm (1 s apart from the reference's settling,
+    four seconds a depth, as Park's Fig. 8)."""
+    from turning_force.core.experiment import load_experiment
+
+    if args.job:
+        return load_experiment(args.job)
+    low, high = depths
+    return commissioning.with_sets([
+        'force_controller.controller=smc', 'experiment.name=steps_over_depths_mm',
+        'lathe_sim.depth_times_s=[0.0, 4.0, 8.0]',
+        f'lathe_sim.depth_mm=[{low!r}, {(low + high) / 2.0!r}, {high!r}]',
+        'lathe_sim.depth_interpolation=step', 'experiment.duration_s=12.0'])
 
 
 def _identification_json(ident: Any, controller: dict[str, Any], estimator: dict[str, Any],
@@ -620,7 +692,9 @@ def _print_identification(ident: Any, ksd_min: float, ksd_max: float, margin: fl
           f'{model.max_feed_mm_min:g} mm/min): residual {friction.residual_rms:.3g} A')
     print(line(f'at {model.min_feed_mm_min:g} mm/min', friction['at_min_feed_a'], 1.0, 'A'))
     print(line(f'at {model.max_feed_mm_min:g} mm/min', friction['at_max_feed_a'], 1.0, 'A'))
-    print(line('force noise (one sample)', ident.force_noise_n, 1.0, 'N'))
+    print(line('force noise (one sample, cut)', ident.force_noise_n, 1.0, 'N'))
+    print(line('  of it the sensor (air move)', ident.air_noise_n, 1.0, 'N'))
+    print(line("  and the cut's own, r (+-r F)", ident.force_fluctuation, 1.0, ''))
     scaled = f', scaled to depths {depths[0]:g}-{depths[1]:g} mm' if depths else ''
     print(f'SMC bounds on K_s d: {ksd_min:.0f}-{ksd_max:.0f} N/mm (geometric about K_s d, '
           f'margin max({margin:g}, 3 sd){scaled})')
@@ -781,6 +855,8 @@ def build_parser() -> argparse.ArgumentParser:
                        '--depths-mm)')
     ident.add_argument('--cut-depth-mm', type=float,
                        help='depth of the commissioning cut (known from a simulated session)')
+    ident.add_argument('--plants', type=int, default=50,
+                       help='closed-loop verification: plants drawn about the identified one')
     ident.add_argument('--json', action='store_true', help='print one JSON object')
     ident.set_defaults(handler=_identify)
 

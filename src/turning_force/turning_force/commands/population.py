@@ -10,8 +10,9 @@ multi-step job, a deep step or an interrupted cut; and for a third of them a dri
 commissioning and the job (dead time, process gain, friction or servo).
 
 :func:`commission` is the user's flow: the commissioning experiment recorded on the machine
-(``run --core --out``), ``identify`` with the job's depth range, and the identified settings
-laid over the job. :func:`run_job` cuts the job with any settings on the machine as it is
+(``run --core --out``), ``identify`` with the job's depth range and its closed-loop verification
+on the job (:mod:`turning_force.core.verification`), whose chosen settings are laid over the
+job. :func:`run_job` cuts the job with any settings on the machine as it is
 then (drifted where it drifts).
 """
 
@@ -28,8 +29,9 @@ import numpy as np
 from turning_force.core.experiment import Experiment, load_experiment
 from turning_force.core.identify import IdentifySettings
 from turning_force.core.kernel.simulate import simulate
+from turning_force.core.verification import Prediction, verify
 
-__all__ = ['JOBS', 'Machine', 'commission', 'draw', 'run_job']
+__all__ = ['JOBS', 'Commissioned', 'Machine', 'commission', 'draw', 'run_job']
 
 EXPERIMENTS = Path('config/experiments')   # the repository's, from its root
 PARK_KS_N_MM2 = 2200.0   # Park's steel at g = 1 (park1998_fig8.yaml)
@@ -138,10 +140,20 @@ def job_experiment(machine: Machine, *, after_drift: bool = True,
         f'experiment.name=machine_{machine.index}'])
 
 
-def commission(machine: Machine, experiments: Path = EXPERIMENTS) -> list[str]:
+@dataclass(frozen=True)
+class Commissioned:
+    """What the user's flow gives on a machine: the identified settings, and the candidate
+    the closed-loop verification chose with its prediction."""
+
+    identified: tuple[str, ...]
+    chosen: Prediction
+    predictions: tuple[Prediction, ...]
+
+
+def commission(machine: Machine, experiments: Path = EXPERIMENTS,
+               plants: int = 50) -> Commissioned:
     """The user's flow on ``machine`` before it drifts: the commissioning experiment recorded,
-    ``identify`` with the job's depth range; the identified settings as ``--set``
-    assignments."""
+    ``identify`` with the job's depth range, verified in closed loop on the job."""
     from turning_force.commands.core_session import record_core
     from turning_force.session.identify import cut_depth_mm, identify_sessions
 
@@ -154,11 +166,16 @@ def commission(machine: Machine, experiments: Path = EXPERIMENTS) -> list[str]:
         ident, sessions = identify_sessions([session], IdentifySettings())
         cut_depth = cut_depth_mm(sessions) or 1.0
     low, high = ident.ksd_bounds_n_mm(0.1, (min(cut) / cut_depth, max(cut) / cut_depth))
+    # The user verifies on the job's file: the machine as commissioned, not its drift.
+    job = job_experiment(machine, after_drift=False, experiments=experiments)
     sections: dict[str, Mapping[str, Any]] = {
         'force_controller': ident.controller_parameters(low, high),
-        'force_estimator': ident.estimator_parameters()}
-    return [f'{node}.{key}={value!r}' if not isinstance(value, str) else f'{node}.{key}={value}'
-            for node, params in sections.items() for key, value in params.items()]
+        'force_estimator': ident.estimator_parameters(job.controller.reference_force_n)}
+    identified = tuple(f'{node}.{key}={value if isinstance(value, str) else repr(value)}'
+                       for node, params in sections.items() for key, value in params.items())
+    predictions = verify(job, ident, identified, cut_depth, plants=plants,
+                         seed=machine.seed + machine.index)
+    return Commissioned(identified, predictions[0], tuple(predictions))
 
 
 def run_job(machine: Machine, sets: Sequence[str] = (),

@@ -183,7 +183,9 @@ class Identification:
     friction: Fit
     friction_model: FrictionModel
     process: Fit
-    force_noise_n: Estimate
+    force_noise_n: Estimate           # one force sample's, in the commissioning cut
+    air_noise_n: Estimate             # one force sample's with no cut: the sensor's
+    force_fluctuation: Estimate       # the cutting force's own, a fraction of it (uniform)
     spindle_speed_rpm: float
     air_s: float                      # seconds of air move and of cut used
     cut_s: float
@@ -222,10 +224,19 @@ class Identification:
             out['model_servo_damping'] = self.servo['damping'].value
         return out
 
-    def estimator_parameters(self) -> dict[str, float]:
-        """The ``force_estimator`` parameters: friction (Eq. 25) and the force noise."""
-        return {**self.friction_model.parameters(),
-                'kalman_force_noise_n': self.force_noise_n.value}
+    def noise_at_n(self, force_n: float) -> float:
+        """One force sample's noise at ``force_n``: the sensor's and the cut's own
+        fluctuation, ``sqrt(s_air^2 + (r F)^2 / 3)``."""
+        r = self.force_fluctuation.value
+        return math.sqrt(self.air_noise_n.value ** 2 + (r * force_n) ** 2 / 3.0)
+
+    def estimator_parameters(self, reference_force_n: float | None = None) -> dict[str, float]:
+        """The ``force_estimator`` parameters: friction (Eq. 25) and the force noise, at the
+        job's reference where it is given (the fluctuation grows with the force), else as in
+        the commissioning cut."""
+        noise = (self.force_noise_n.value if reference_force_n is None
+                 else self.noise_at_n(reference_force_n))
+        return {**self.friction_model.parameters(), 'kalman_force_noise_n': noise}
 
     def ksd_bounds_n_mm(self, margin: float = 0.1, depth_scale: tuple[float, float] = (1.0, 1.0),
                         ) -> tuple[float, float]:
@@ -638,10 +649,10 @@ def _process_response(feed_mm_min: FloatArray, tau_c_s: float, dt_s: float) -> F
 
 def _identify_process(recordings: Sequence[Recording], segments: Sequence[_Segments],
                       friction: FrictionModel, s: IdentifySettings
-                      ) -> tuple[Fit, Estimate, FloatArray]:
+                      ) -> tuple[Fit, Estimate, FloatArray, list[tuple[FloatArray, float]]]:
     """Eq. 1 in the cut with Kienzle's exponent: ``F = G v_a^g / (1 + tau_c s)``, ``G = K_s d /
-    N^g``, each window's starting force free. Returns the fit, the force noise and the
-    residual.
+    N^g``, each window's starting force free. Returns the fit, the force noise, the residual,
+    and each settled plateau's residual with its mean force.
 
     The staircase cuts at several feeds, which is what makes ``g`` identifiable; with ``g``
     held at 1 a Kienzle material's force is a curve the line misses, and the miss read as
@@ -714,17 +725,53 @@ def _identify_process(recordings: Sequence[Recording], segments: Sequence[_Segme
         'cutting_time_constant_s': Estimate(float(best.x[1]), float(std[1]), 's'),
     }
     fit = Fit('park1998_eq1_kienzle', params, float(np.sqrt(np.mean(res ** 2))), 'N', res.size)
-    settled = []
+    settled: list[tuple[FloatArray, float]] = []
     offset = 0
     tau_c = float(best.x[1])
-    for rec, (a, b), feed, _ in windows:
+    for rec, (a, b), feed, force in windows:
         part = res[offset:offset + feed.size].reshape(b - a, rec.samples)
+        forces = force.reshape(b - a, rec.samples)
         offset += feed.size
         for p in _long_plateaus(rec, (a, b), s):
             settle = min(round((5.0 * tau_c) / rec.block_period_s) + 1,
                          (p.stop - p.start) // 2)
-            settled.append(part[p.start + settle - a:p.stop - a].ravel())
-    return fit, _white_noise(settled or [res]), res
+            settled.append((part[p.start + settle - a:p.stop - a].ravel(),
+                            float(np.mean(forces[p.start + settle - a:p.stop - a]))))
+    noise = _white_noise([piece for piece, _ in settled] or [res])
+    return fit, noise, res, settled
+
+
+def _air_noise(recordings: Sequence[Recording], segments: Sequence[_Segments],
+               s: IdentifySettings) -> Estimate:
+    """The force estimate's noise with no cut: the q current's white noise on the air move's
+    plateaus (the second half of each, the servo settled), in newtons of the current map."""
+    pieces = []
+    for rec, seg in zip(recordings, segments, strict=True):
+        if seg.air is None:
+            continue
+        for p in _long_plateaus(rec, seg.air, s):
+            half = (p.start + p.stop) // 2
+            pieces.append(rec.current_q_a[half:p.stop].ravel() / rec.current_map.per_force_a_n)
+    if not pieces:
+        names = ', '.join(r.name for r in recordings)
+        raise IdentifyError(f'{names}: the air move holds no plateau to measure the noise on')
+    return _white_noise(pieces)
+
+
+def _fluctuation(air: Estimate, settled: Sequence[tuple[FloatArray, float]]) -> Estimate:
+    """The cutting force's own fluctuation, as a fraction ``r`` of the force: in the cut a
+    sample's variance is the air's plus ``(r F)^2 / 3`` (uniform in +-r F), so ``r^2`` is three
+    times the excess over the air's, per squared force, pooled over the plateaus."""
+    if not settled:
+        return Estimate(0.0, 0.0)
+    excess = [float(np.mean(np.diff(piece) ** 2)) / 2.0 - air.value ** 2
+              for piece, _ in settled if piece.size > 1]
+    squares = [force * force for piece, force in settled if piece.size > 1]
+    r2 = 3.0 * max(sum(excess), 0.0) / max(sum(squares), 1e-12)
+    spread = float(np.std(excess)) / math.sqrt(max(len(excess), 1)) if excess else 0.0
+    r = math.sqrt(r2)
+    std = 3.0 * spread / max(sum(squares) / max(len(squares), 1), 1e-12) / max(2.0 * r, 1e-3)
+    return Estimate(r, std)
 
 
 def _white_noise(pieces: Sequence[FloatArray]) -> Estimate:
@@ -752,12 +799,14 @@ def identify(recordings: Sequence[Recording],
     segments = _check_sessions(recordings, s)
     servo, candidates = _identify_servo(recordings, s)
     friction, friction_model = _identify_friction(recordings, segments, s)
-    process, noise, _ = _identify_process(recordings, segments, friction_model, s)
+    process, noise, _, settled = _identify_process(recordings, segments, friction_model, s)
+    air = _air_noise(recordings, segments, s)
 
     return Identification(
         sessions=tuple(r.name for r in recordings), servo=servo, servo_candidates=candidates,
         friction=friction, friction_model=friction_model, process=process,
-        force_noise_n=noise, spindle_speed_rpm=recordings[0].spindle_speed_rpm,
+        force_noise_n=noise, air_noise_n=air, force_fluctuation=_fluctuation(air, settled),
+        spindle_speed_rpm=recordings[0].spindle_speed_rpm,
         air_s=_seconds(recordings, segments, 'air'),
         cut_s=_seconds(recordings, segments, 'cut'))
 

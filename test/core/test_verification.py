@@ -1,0 +1,76 @@
+"""Closed-loop verification of identified settings (core/verification.py), on the machines of
+issue 15's table, where the commissioning flow used to make regulation far worse than the
+defaults: identified, verified on Park's Fig. 8 job, and cut. What it chooses holds the band on
+all three; on the Kienzle machine and the noisy drive the identified plant is the machine near
+enough that the prediction is the cut's outcome (the issue: within 20 % or 1 N). On the fast
+spindle it is not yet: the job runs below the staircase's slowest feed (20 % of 240 mm/min),
+where the identified friction curve is extrapolated, and the cut holds 2.3 N where 0.8 N was
+predicted (issue 15, open)."""
+
+from __future__ import annotations
+
+import pytest
+
+from turning_force.core.experiment import load_experiment
+from turning_force.core.identify import identify
+from turning_force.core.kernel.record import record
+from turning_force.core.kernel.simulate import simulate
+from turning_force.core.verification import BAND_RIPPLE_N, BAND_STEADY_N, plant_sets, verify
+
+MACHINES = {   # issue 15's table; each --set given to the commissioning and to the job
+    'kienzle': ['lathe_sim.cutting_exponent=0.8', 'lathe_sim.specific_cutting_force_n_mm2=1600.0'],
+    'noisy drive': ['lathe_sim.current_noise_a=0.1', 'lathe_sim.force_noise_fraction=0.05'],
+    'fast spindle': ['/**.spindle_speed_rpm=1200.0'],
+}
+
+
+def commissioned(experiments_dir, sets, plants=10):
+    commissioning = load_experiment(experiments_dir / 'commissioning.yaml').with_sets(sets)
+    ident = identify([record(commissioning).recording])
+    job = load_experiment(experiments_dir / 'park1998_fig8.yaml').with_sets(sets)
+    depths = [d for d in job.plant.depth_mm if d > 0]
+    low, high = ident.ksd_bounds_n_mm(0.1, (min(depths), max(depths)))   # cut 1 mm deep
+    identified = [f'force_controller.{k}={v if isinstance(v, str) else repr(v)}'
+                  for k, v in ident.controller_parameters(low, high).items()]
+    identified += [f'force_estimator.{k}={v!r}' for k, v
+                   in ident.estimator_parameters(job.controller.reference_force_n).items()]
+    return ident, job, verify(job, ident, identified, 1.0, plants=plants, seed=3)
+
+
+@pytest.mark.parametrize('machine', list(MACHINES))
+def test_what_verification_chooses_holds_the_band_as_predicted(experiments_dir, machine):
+    _, job, predictions = commissioned(experiments_dir, MACHINES[machine])
+    chosen = predictions[0]
+    defaults = next(p for p in predictions if p.name == 'defaults')
+    assert chosen.in_band >= defaults.in_band
+    outcome = simulate(job.with_sets(list(chosen.sets))).metrics
+    assert outcome['steady_mean_abs_error_n'] <= BAND_STEADY_N
+    assert outcome['ripple_p2p_n'] <= BAND_RIPPLE_N
+    if machine == 'fast spindle':
+        return
+    for predicted, metric in ((chosen.steady_n, 'steady_mean_abs_error_n'),
+                              (chosen.mean_n, 'mean_abs_error_n')):
+        assert abs(outcome[metric] - predicted) <= max(0.2 * predicted, 1.0), metric
+
+
+def test_the_identified_plant_is_the_machine(experiments_dir):
+    # The Kienzle machine: what the simulator is told to be, from the identification alone.
+    ident, job, _ = commissioned(experiments_dir, MACHINES['kienzle'], plants=1)
+    plant = job.with_sets(plant_sets(ident, 1.0, job.plant.current_per_force_a_n)).plant
+    assert plant.cutting_exponent == pytest.approx(0.8, abs=0.05)
+    # K_s at the programmed feed: the force it gives there, whatever the exponent's error.
+    assert plant.specific_cutting_force_n_mm2 * 0.2 ** plant.cutting_exponent == pytest.approx(
+        1600.0 * 0.2 ** 0.8, rel=0.05)
+    assert plant.cutting_time_constant_s == pytest.approx(0.05, rel=0.1)
+    assert plant.servo_time_constant_s == pytest.approx(0.17, rel=0.1)
+    assert plant.pmc_dead_time_s == pytest.approx(0.0, abs=0.011)
+
+
+def test_the_defaults_win_over_a_candidate_that_holds_fewer_plants(experiments_dir):
+    _, _, predictions = commissioned(experiments_dir, [], plants=4)
+    defaults = next(p for p in predictions if p.name == 'defaults')
+    # Those holding no fewer plants than the defaults come first, most plants first; the
+    # chosen one is the first: never one the defaults beat.
+    allowed = [p for p in predictions if p.in_band >= defaults.in_band]
+    assert predictions[:len(allowed)] == allowed
+    assert [p.in_band for p in allowed] == sorted((p.in_band for p in allowed), reverse=True)
