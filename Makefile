@@ -71,10 +71,12 @@ test: lint
 test-all: lint
 	$(PY) -m pytest -q -n $(JOBS) test
 
-# make bench: issue 9's table, old beside new, in one run (about ten minutes);
+# make bench: issue 9's table, old beside new, in one run (about ten minutes), then
+# commissioning on 200 simulated machines (about ten more);
 # make bench-all: every benchmark in test/bench/ (each prints its own details).
 bench: setup
 	$(PY) test/bench/bench_table.py
+	$(PY) test/bench/bench_population.py --machines 200
 
 bench-all: setup
 	@for f in test/bench/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done

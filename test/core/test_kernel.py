@@ -157,3 +157,30 @@ def test_a_warm_start_does_not_import_scipy_linalg(fig8):
                          timeout=300, check=True).stdout.split()
     expected = simulate(load_experiment(fig8)).metrics['steady_mean_abs_error_n']
     assert out == ['False', repr(expected)]
+
+
+def test_a_warm_start_makes_only_the_entry_points_dispatchers():
+    # With a warm cache the entry points' machine code is read whole: the other compiled
+    # functions wait, and a call from Python makes them dispatchers, in every module that holds
+    # one by name (control.update imports law.clip).
+    import json
+    import subprocess
+
+    kernel.load()
+    code = '\n'.join([
+        'import json, numpy as np',
+        'from turning_force.core import kernel',
+        'kernel.load()',
+        'from turning_force.core.control import law, rls, update',
+        'before = [type(f).__name__ for f in (rls.update, law.clip, update.clip)]',
+        'p = np.array(rls.params([0.0] * 4, 1e6)); s = np.zeros(rls.STATE)',
+        'rls.restart(p, s, 0, 0); rls.update(p, s, 0, 0, 1.0, 2.0, 3.0, 4.0, 5.0)',
+        'print(json.dumps([before, type(update.clip).__name__, update.clip is law.clip,',
+        '                  s[rls.S_THETA:rls.S_THETA + 4].tolist()]))'])
+    before, after, same, theta = json.loads(subprocess.run(
+        [sys.executable, '-c', code], capture_output=True, text=True, timeout=300,
+        check=True).stdout)
+    assert before == ['_Deferred'] * 3 and after == 'CPUDispatcher' and same
+    # The same update as compiled from the start: theta moves along x (P0 = 1e6 I, one sample).
+    x = np.array([1.0, 2.0, 3.0, 4.0])
+    np.testing.assert_allclose(theta, x * 5.0 / (1e-6 + x @ x), rtol=1e-5)

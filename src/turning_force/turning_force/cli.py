@@ -14,18 +14,21 @@ numba before the first period; see turning_force.core.kernel).
 from __future__ import annotations
 
 import argparse
+import atexit
 import contextlib
 import dataclasses
 import datetime
 import json
 import math
+import os
 import signal
 import sys
 import tempfile
+import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import Any, NoReturn
 
 from turning_force.core.errors import NoCutError, TurningForceError
 from turning_force.core.experiment import Experiment, load_experiment
@@ -897,5 +900,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     return code
 
 
+def console() -> NoReturn:
+    """The ``turning-force`` command: :func:`main`, then out without the interpreter's
+    teardown. A command that has finished, flushed its output and run its exit handlers has
+    nothing left to tear down, and dismantling numba's and LLVM's objects one by one takes a
+    fifth of a short run's wall time (0.13 s of 0.58)."""
+    code = main()
+    for thread in threading.enumerate():   # as the interpreter would: its threads finish
+        if thread is not threading.main_thread() and not thread.daemon:
+            thread.join()
+    atexit._run_exitfuncs()   # logging's and the libraries' own exit handlers
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 if __name__ == '__main__':
-    sys.exit(main())
+    console()

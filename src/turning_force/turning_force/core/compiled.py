@@ -23,7 +23,7 @@ import math
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, TypeVar, cast
 
 import numpy as np
@@ -48,6 +48,7 @@ def compiled(function: _F) -> _F:
     division by zero gives IEEE infinities), the GIL released. Compiled at its first call."""
     with _lock:
         if _active:
+            _materialize()
             return cast(_F, _jit(function, ''))
         _pending.append((function, ''))
         return function
@@ -59,6 +60,7 @@ def entry(signature: str) -> Callable[[_F], _F]:
     def decorate(function: _F) -> _F:
         with _lock:
             if _active:
+                _materialize()
                 return cast(_F, _jit(function, signature))
             _pending.append((function, signature))
             return function
@@ -88,20 +90,14 @@ def activate() -> float:
                   'and version: 15 to 60 s)', file=sys.stderr, flush=True)
         elif not installed_laws():
             _target_without_blas()
-        made = {id(function): (function, _jit(function, signature))
+        # With a warm cache an entry point's machine code is read whole: nothing else is
+        # compiled, and the other functions' dispatchers (a millisecond each) wait until Python
+        # calls one or a compilation needs them (_materialize).
+        defer = warm and not numba.config.DISABLE_JIT   # type: ignore[attr-defined]
+        made = {id(function): (function, _Deferred(function) if defer and not signature
+                               else _jit(function, signature))
                 for function, signature in _pending}
-        # Every module that holds one of them by name gets the dispatcher in its place (numba
-        # resolves a compiled function's globals when it compiles it), an entry point's behind
-        # its first call.
-        owners = {function.__module__ for function, _ in _pending}
-        for name, module in list(sys.modules.items()):
-            if module is None or not (name in owners or name.startswith('turning_force')):
-                continue
-            namespace = vars(module)
-            for key, value in list(namespace.items()):
-                found = made.get(id(value))
-                if found is not None and found[0] is value:
-                    namespace[key] = found[1]
+        _rebind(made, {function.__module__ for function, _ in _pending})
         if not warm:   # compile them all now, and say how long it took
             for _, compiled_function in made.values():
                 if isinstance(compiled_function, _Entry):
@@ -109,6 +105,51 @@ def activate() -> float:
         _pending.clear()
         _active = True
         return time.perf_counter() - start
+
+
+def _rebind(made: Mapping[int, tuple[Any, Any]], owners: set[str]) -> None:
+    """Every module that holds one of the functions by name gets what it was made into
+    (numba resolves a compiled function's globals when it compiles it)."""
+    for name, module in list(sys.modules.items()):
+        if module is None or not (name in owners or name.startswith('turning_force')):
+            continue
+        namespace = vars(module)
+        for key, value in list(namespace.items()):
+            found = made.get(id(value))
+            if found is not None and found[0] is value:
+                namespace[key] = found[1]
+
+
+_deferred: list[_Deferred] = []
+
+
+def _materialize() -> bool:
+    """The deferred functions' dispatchers, made and bound in every module that holds them;
+    False where there were none."""
+    with _lock:
+        if not _deferred:
+            return False
+        made = {id(d): (d, _jit(d.py_func, '')) for d in _deferred}
+        _rebind(made, {d.py_func.__module__ for d in _deferred})
+        for d in _deferred:
+            d.dispatcher = made[id(d)][1]
+        _deferred.clear()
+        return True
+
+
+class _Deferred:
+    """A compiled function whose dispatcher is not made yet (:func:`activate`): a call from
+    Python makes every deferred one's, then runs."""
+
+    def __init__(self, function: Callable[..., Any]) -> None:
+        self.py_func = function
+        self.__doc__, self.__name__ = function.__doc__, function.__name__
+        self.dispatcher: Any = None
+        _deferred.append(self)
+
+    def __call__(self, *args: Any) -> Any:
+        _materialize()
+        return self.dispatcher(*args)
 
 
 class _Entry:
@@ -124,10 +165,16 @@ class _Entry:
         return self._call(*args)
 
     def load(self) -> None:
-        """Compile it for its signature now, or load it from the cache."""
+        """Compile it for its signature now, or load it from the cache (where the cache
+        misses, numba compiles it, and the functions it calls need their dispatchers)."""
         with _lock:
             if self._call is not self._dispatcher:
-                self._dispatcher.compile(self._signature)
+                try:
+                    self._dispatcher.compile(self._signature)
+                except Exception:
+                    if not _materialize():
+                        raise
+                    self._dispatcher.compile(self._signature)
                 self._dispatcher.disable_compile()
                 self._call = self._dispatcher
 
