@@ -184,3 +184,26 @@ def test_a_warm_start_makes_only_the_entry_points_dispatchers():
     # The same update as compiled from the start: theta moves along x (P0 = 1e6 I, one sample).
     x = np.array([1.0, 2.0, 3.0, 4.0])
     np.testing.assert_allclose(theta, x * 5.0 / (1e-6 + x @ x), rtol=1e-5)
+
+
+def test_an_entry_point_the_cache_misses_compiles_with_its_callees(tmp_path):
+    # A cache stamped warm whose machine code for an entry point is not there (CI saw it: two
+    # checkouts shared a stamp): activation defers the other functions, so the entry point's
+    # compilation first meets deferred callees; it makes their dispatchers and compiles.
+    import subprocess
+
+    code = '\n'.join([
+        'from turning_force.core import codecache, kernel',
+        'codecache.cache_dir().mkdir(parents=True)',
+        '(codecache.cache_dir() / codecache.STAMP).write_text(codecache.source_hash())',
+        'kernel.load()',
+        'from turning_force.core.control import ControllerSettings, make_controller',
+        'print(make_controller(ControllerSettings()).update(500.0, 0.0).override_pct)'])
+    from turning_force.core.control import ControllerSettings, make_controller
+
+    env = {**os.environ, 'NUMBA_CACHE_DIR': str(tmp_path)}
+    run = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=600, check=False, env=env)
+    assert run.returncode == 0, run.stderr[-2000:]
+    expected = make_controller(ControllerSettings()).update(500.0, 0.0).override_pct
+    assert float(run.stdout.split()[-1]) == expected

@@ -40,9 +40,12 @@ def installed_laws() -> tuple[tuple[str, str, str], ...]:
 
 @functools.cache
 def source_hash() -> str:
-    """The SHA-256 of numba's version, every source of ``turning_force.core`` and the module
-    of every installed law."""
+    """The SHA-256 of numba's version, where ``turning_force.core`` is and every source of it,
+    and the module of every installed law."""
     digest = hashlib.sha256(importlib.metadata.version('numba').encode())
+    # numba files a function's machine code under its source file's path: two checkouts of the
+    # same sources keep apart, or one's stamp would call the other's cache warm.
+    digest.update(str(CORE).encode())
     for path in sorted(CORE.rglob('*.py')):
         digest.update(path.relative_to(CORE).as_posix().encode())
         digest.update(path.read_bytes())

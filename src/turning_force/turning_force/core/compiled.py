@@ -174,6 +174,8 @@ class _Entry:
                 except Exception:
                     if not _materialize():
                         raise
+                    # numba keeps a failed compilation's error: a fresh dispatcher tries again.
+                    self._dispatcher = _jit(self._dispatcher.py_func, '')
                     self._dispatcher.compile(self._signature)
                 self._dispatcher.disable_compile()
                 self._call = self._dispatcher
