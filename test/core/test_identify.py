@@ -82,8 +82,10 @@ def test_identify_recovers_the_simulated_machine(experiments_dir, machine):
     np.testing.assert_allclose(
         [ident.friction['at_min_feed_a'].value, ident.friction['at_max_feed_a'].value],
         experiment.plant.friction.current_a(feeds), rtol=0.10)
-    # The staircase spans 20-150 % of 120 mm/min: the curve holds over that range.
-    np.testing.assert_allclose(feeds, [24.0, 180.0])
+    # The staircase spans 20-150 % of 120 mm/min; the curve reaches down to the creep feed,
+    # 5 % (where the simulator's own vertex is: carried on below the slowest level, it is the
+    # machine's).
+    np.testing.assert_allclose(feeds, [6.0, 180.0])
     # The fits work on noisy signals: their standard deviations must be honest, the error
     # within a few of them. (With a noise-free feed reading, the servo's are ~0: not checked.)
     checked = [(ident.ksd_n_mm, truth['ksd_n_mm']), (tau_c, truth['cutting_time_constant_s']),

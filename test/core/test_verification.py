@@ -3,9 +3,10 @@ issue 15's table, where the commissioning flow used to make regulation far worse
 defaults: identified, verified on Park's Fig. 8 job, and cut. What it chooses holds the band on
 all three; on the Kienzle machine and the noisy drive the identified plant is the machine near
 enough that the prediction is the cut's outcome (the issue: within 20 % or 1 N). On the fast
-spindle it is not yet: the job runs below the staircase's slowest feed (20 % of 240 mm/min),
-where the identified friction curve is extrapolated, and the cut holds 2.3 N where 0.8 N was
-predicted (issue 15, open)."""
+spindle it is not yet (0.74 N predicted, 1.85 N cut): its job runs at 270-290 mm/min, where the
+simulated machine's friction is flat (its curve ends at 300 mm/min) and Eq. 25's quadratic,
+fitted up to 360 mm/min, is not: the estimate carries 2-3 N of friction error the identified
+plant does not have (issue 15, open)."""
 
 from __future__ import annotations
 

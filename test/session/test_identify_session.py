@@ -82,7 +82,7 @@ def test_identify_writes_parameters_that_run_loads(commissioning, capfd, tmp_pat
         ksd['value'] / 1.1 * min(secants), rel=1e-6)
     assert controller['smc_ksd_max_n_mm'] == pytest.approx(
         ksd['value'] * 3 * 1.1 * max(secants), rel=1e-6)
-    assert estimator['friction_min_feed_mm_min'] == 24.0
+    assert estimator['friction_min_feed_mm_min'] == 6.0
     assert set(result['servo_candidates']) == {'first_order', 'second_order'}
 
     fig8 = EXPERIMENTS / 'park1998_fig8.yaml'

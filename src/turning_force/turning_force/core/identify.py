@@ -60,6 +60,7 @@ FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 SERVO_DECIMATION = 5
+CREEP_FRACTION = 0.05   # the friction curve's vertex: 5 % of the programmed feed
 
 
 class IdentifyError(TurningForceError, ValueError):
@@ -593,8 +594,9 @@ def _seconds(recordings: Sequence[Recording], segments: Sequence[_Segments], par
 
 def _identify_friction(recordings: Sequence[Recording], segments: Sequence[_Segments],
                        s: IdentifySettings) -> tuple[Fit, FrictionModel]:
-    """Eq. 25 from the air move: ``i_q - offset = a (v - v_min)^2 + b`` over the feeds the
-    staircase held (``v_min``, ``v_max``: the slowest and fastest plateaus)."""
+    """Eq. 25 from the air move: ``i_q - offset = a (v - v_min)^2 + b`` fitted over the feeds
+    the staircase held (its slowest to its fastest plateau), ``v_min`` the creep feed
+    (``CREEP_FRACTION`` of the programmed feed) and ``v_max`` the fastest plateau."""
     feeds, currents, levels = [], [], []
     for rec, seg in zip(recordings, segments, strict=True):
         if seg.air is None:
@@ -615,6 +617,12 @@ def _identify_friction(recordings: Sequence[Recording], segments: Sequence[_Segm
         raise IdentifyError(f'{names}: the air move holds no two positive feeds: the friction '
                             'curve (Park Eq. 25) needs two or more')
     v, i = v[inside], i[inside]
+    # The curve's vertex at the creep feed (5 % of the programmed feed, Park's 6 mm/min at 120),
+    # not at the slowest level measured: below that level the slide still moves, and a job that
+    # runs slower (a faster spindle's 10 % is below the staircase's 20 %) meets the curve
+    # carried on, where the vertex at the slowest level would have let friction ramp to zero.
+    creep = CREEP_FRACTION * min(rec.programmed_feed_rate_mm_min for rec in recordings)
+    v_min = min(v_min, creep)
     theta, residual, cov = _linear_fit(np.column_stack([(v - v_min) ** 2, np.ones_like(v)]), i)
     span2 = (v_max - v_min) ** 2
     at_max = float(theta[0] * span2 + theta[1])
