@@ -171,3 +171,14 @@ def test_calibrate_map_without_a_dynamometer_exit_2(capfd):
     reference = Path(__file__).resolve().parents[2] / 'bags' / 'reference' / 'park1998_fig8'
     assert main(['calibrate', '--map', str(reference)]) == 2
     assert f'{reference}: no force/measured' in capfd.readouterr().err
+
+
+def test_a_file_that_keeps_the_defaults_loads(tmp_path):
+    # Where verification finds nothing better than the uncommissioned defaults, identify writes
+    # no identified setting: the file must still be one `run --params` reads, and change nothing.
+    from turning_force.session.identify import format_parameters
+
+    path = tmp_path / 'defaults.yaml'
+    path.write_text(format_parameters({'force_controller': {}}, ['nothing better than none']))
+    fig8 = load_experiment(EXPERIMENTS / 'park1998_fig8.yaml')
+    assert with_parameters_file(fig8, path).resolved_params() == fig8.resolved_params()

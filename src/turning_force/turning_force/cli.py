@@ -559,8 +559,9 @@ def _identify(args: argparse.Namespace) -> int:
         node, _, rest = assignment.partition('.')
         key, _, value = rest.partition('=')
         (controller if node == 'force_controller' else estimator)[key] = _set_value(value)
-    sections = ({'force_controller': controller, 'force_estimator': estimator}
-                if chosen.name != 'defaults' else {})
+    sections: dict[str, Mapping[str, Any]] = (
+        {'force_controller': controller, 'force_estimator': estimator}
+        if chosen.name != 'defaults' else {'force_controller': {}})
     if args.json:
         print(json.dumps({**_identification_json(ident, controller, estimator, cut_depth),
                           'predictions': [dataclasses.asdict(p) for p in predictions],

@@ -2,8 +2,8 @@
 and the scalar rules every compiled algorithm shares.
 
 Each algorithm is written once, in the module of its stage of the signal chain (the plant in
-:mod:`.lathe`, the estimator in :mod:`.estimator`, each control law in its module of
-:mod:`.control.laws`, the PMC gate in :mod:`.gate`), as functions decorated here:
+:mod:`.plant.lathe`, the estimator in :mod:`.estimation.estimator`, each control law in its
+module of :mod:`.control.laws`, the PMC gate in :mod:`.pmc.gate`), as functions decorated here:
 :func:`compiled` for the algorithm's own functions, :func:`entry` for the few that Python calls,
 with their signatures. Under ``NUMBA_DISABLE_JIT=1`` they run as the Python they are written in.
 
@@ -13,7 +13,8 @@ so that reading settings (which live beside the code that reads them) stays chea
 function decorated so far a numba dispatcher, in its module and in every module that imported
 it by name; what is decorated after it is compiled as it is defined. An entry point is compiled
 for its signature (or loaded from the cache) at its first call, so that a run loads the machine
-code of the entry points it calls and no other. numba's machine code goes to
+code of the entry points it calls and no other; with a warm cache the other functions'
+dispatchers wait until Python calls one or a compilation needs them. numba's machine code goes to
 :func:`turning_force.core.codecache.cache_dir`, never into the installed package.
 """
 
@@ -55,8 +56,8 @@ def compiled(function: _F) -> _F:
 
 
 def entry(signature: str) -> Callable[[_F], _F]:
-    """An entry point from Python: compiled for ``signature`` (or loaded from the cache) when
-    the code is activated, so that no call from Python compiles on its way."""
+    """An entry point from Python: compiled for ``signature`` (or loaded from the cache) at its
+    first call and closed to other types, so that no call from Python compiles on its way."""
     def decorate(function: _F) -> _F:
         with _lock:
             if _active:

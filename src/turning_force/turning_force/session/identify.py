@@ -157,7 +157,7 @@ def format_parameters(sections: Mapping[str, Mapping[str, Any]], header: Sequenc
     """A ROS 2 parameters file (``/**/<node>: ros__parameters: ...``) with a comment header."""
     lines = [f'# {line}' if line else '#' for line in header]
     for node, params in sections.items():
-        lines += [f'/**/{node}:', '  ros__parameters:']
+        lines += [f'/**/{node}:', '  ros__parameters:' + ('' if params else ' {}')]
         for name, value in params.items():   # numbers to 6 digits
             text = value if isinstance(value, str) else yaml_text(float(f'{float(value):.6g}'))
             lines.append(f'    {name}: {text}')
