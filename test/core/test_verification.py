@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import pytest
 
-from turning_force.core.experiment import load_experiment
+from turning_force.core.experiment import assignments, load_experiment
 from turning_force.core.identify import identify
 from turning_force.core.kernel.record import record
 from turning_force.core.kernel.simulate import simulate
@@ -31,10 +31,9 @@ def commissioned(experiments_dir, sets, plants=10):
     job = load_experiment(experiments_dir / 'park1998_fig8.yaml').with_sets(sets)
     depths = [d for d in job.plant.depth_mm if d > 0]
     low, high = ident.ksd_bounds_n_mm(0.1, (min(depths), max(depths)))   # cut 1 mm deep
-    identified = [f'force_controller.{k}={v if isinstance(v, str) else repr(v)}'
-                  for k, v in ident.controller_parameters(low, high).items()]
-    identified += [f'force_estimator.{k}={v!r}' for k, v
-                   in ident.estimator_parameters(job.controller.reference_force_n).items()]
+    identified = [*assignments('force_controller', ident.controller_parameters(low, high)),
+                  *assignments('force_estimator',
+                               ident.estimator_parameters(job.controller.reference_force_n))]
     return ident, job, verify(job, ident, identified, 1.0, plants=plants, seed=3)
 
 

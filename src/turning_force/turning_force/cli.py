@@ -534,6 +534,7 @@ def _parse_range(text: str | None, option: str) -> tuple[float, float] | None:
 
 
 def _identify(args: argparse.Namespace) -> int:
+    from turning_force.core.experiment import assignments
     from turning_force.core.identify import IdentifySettings
     from turning_force.core.verification import verify
     from turning_force.session.identify import cut_depth_mm, format_parameters, identify_sessions
@@ -551,8 +552,8 @@ def _identify(args: argparse.Namespace) -> int:
     controller: dict[str, Any] = dict(ident.controller_parameters(low, high))
     estimator: dict[str, Any] = dict(
         ident.estimator_parameters(job.controller.reference_force_n))
-    identified = [*_as_sets('force_controller', controller),
-                  *_as_sets('force_estimator', estimator)]
+    identified = [*assignments('force_controller', controller),
+                  *assignments('force_estimator', estimator)]
     predictions = verify(job, ident, identified, cut_depth, plants=args.plants)
     chosen = predictions[0]
     for assignment in chosen.sets[len(identified):]:
@@ -600,11 +601,6 @@ def _identify(args: argparse.Namespace) -> int:
 
 
 PREDICTION = 'prediction:'   # the header line `identify` writes and `run --params` reads
-
-
-def _as_sets(node: str, params: Mapping[str, Any]) -> list[str]:
-    return [f'{node}.{key}={value if isinstance(value, str) else repr(value)}'
-            for key, value in params.items()]
 
 
 def _set_value(text: str) -> Any:

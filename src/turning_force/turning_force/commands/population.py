@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from turning_force.core.experiment import Experiment, load_experiment
+from turning_force.core.experiment import Experiment, assignments, load_experiment
 from turning_force.core.identify import IdentifySettings
 from turning_force.core.kernel.simulate import simulate
 from turning_force.core.verification import Prediction, verify
@@ -168,11 +168,10 @@ def commission(machine: Machine, experiments: Path = EXPERIMENTS,
     low, high = ident.ksd_bounds_n_mm(0.1, (min(cut) / cut_depth, max(cut) / cut_depth))
     # The user verifies on the job's file: the machine as commissioned, not its drift.
     job = job_experiment(machine, after_drift=False, experiments=experiments)
-    sections: dict[str, Mapping[str, Any]] = {
-        'force_controller': ident.controller_parameters(low, high),
-        'force_estimator': ident.estimator_parameters(job.controller.reference_force_n)}
-    identified = tuple(f'{node}.{key}={value if isinstance(value, str) else repr(value)}'
-                       for node, params in sections.items() for key, value in params.items())
+    identified = (
+        *assignments('force_controller', ident.controller_parameters(low, high)),
+        *assignments('force_estimator',
+                     ident.estimator_parameters(job.controller.reference_force_n)))
     predictions = verify(job, ident, identified, cut_depth, plants=plants,
                          seed=machine.seed + machine.index)
     return Commissioned(identified, predictions[0], tuple(predictions))

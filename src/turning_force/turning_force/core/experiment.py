@@ -36,8 +36,9 @@ from turning_force.core.pmc.settings import BridgeSettings
 from turning_force.core.settings import Settings, setting
 from turning_force.core.yamlfile import load_yaml, read_text, yaml_error_text
 
-__all__ = ['Experiment', 'RecorderSettings', 'RunSettings', 'build_experiment', 'check_node',
-           'load_experiment', 'parameter_sections', 'parse_experiment', 'parse_set']
+__all__ = ['Experiment', 'RecorderSettings', 'RunSettings', 'assignments', 'build_experiment',
+           'check_node', 'load_experiment', 'parameter_sections', 'parse_experiment',
+           'parse_set']
 
 SHARED = '/**'
 _T = TypeVar('_T')
@@ -140,6 +141,13 @@ def check_node(node: str, unknown: str) -> None:
     if node != SHARED and node not in SETTINGS_OF and node not in OTHER_SECTIONS:
         known = ', '.join([SHARED, *SETTINGS_OF, *OTHER_SECTIONS])
         raise ConfigError(f'{unknown}; known: {known}')
+
+
+def assignments(node: str, params: Mapping[str, Any]) -> list[str]:
+    """``node.param=value`` for each parameter, as :meth:`Experiment.with_sets` and ``--set``
+    read them (text bare, numbers and the rest as Python writes them, which YAML reads back)."""
+    return [f'{node}.{key}={value if isinstance(value, str) else repr(value)}'
+            for key, value in params.items()]
 
 
 def parse_set(text: str) -> tuple[str, str, Any]:
