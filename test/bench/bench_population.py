@@ -9,7 +9,9 @@ error of each column; then per column the fraction in band and the median steady
 ten worst machines after commissioning, with their parameters. Seeds fixed and printed. Measures;
 asserts nothing.
 
-Run: ``.venv/bin/python test/bench/bench_population.py [--machines 200] [--seed 15] [--jobs 2]``
+Run: ``.venv/bin/python test/bench/bench_population.py [--machines 200] [--seed 15] [--jobs 2]
+[--dask ADDRESS | --dask local]`` (on a Dask cluster: its workers need turning_force and this
+repository's config/ at the same path; ``local`` starts a LocalCluster of ``--jobs`` workers).
 """
 
 from __future__ import annotations
@@ -95,14 +97,26 @@ def main() -> None:
     parser.add_argument('--machines', type=int, default=200)
     parser.add_argument('--seed', type=int, default=15)
     parser.add_argument('--jobs', type=int, default=2)
+    parser.add_argument('--dask', help="a Dask scheduler's address, or local")
     args = parser.parse_args()
     kernel.load()
     machines = draw(args.machines, args.seed)
+    where = f'dask {args.dask}' if args.dask else f'{args.jobs} processes'
     print(f'{args.machines} machines from seed {args.seed}; band: steady <= {BAND_STEADY_N:g} N '
-          f'and ripple <= {BAND_RIPPLE_N:g} N p-p; {args.jobs} processes\n')
+          f'and ripple <= {BAND_RIPPLE_N:g} N p-p; {where}\n')
     start = time.perf_counter()
-    with ProcessPoolExecutor(args.jobs) as pool:
-        results = list(pool.map(evaluate, machines))
+    if args.dask:
+        from distributed import Client, LocalCluster
+
+        cluster = (LocalCluster(n_workers=args.jobs, threads_per_worker=1, processes=True)
+                   if args.dask == 'local' else None)
+        with Client(cluster if cluster is not None else args.dask) as client:
+            results = client.gather(client.map(evaluate, machines, pure=False))
+        if cluster is not None:
+            cluster.close()
+    else:
+        with ProcessPoolExecutor(args.jobs) as pool:
+            results = list(pool.map(evaluate, machines))
     took = time.perf_counter() - start
     print('steady error [N] per machine:')
     print(f'{"machine":>8s} ' + ' '.join(f'{c:>18s}' for c in COLUMNS)
