@@ -30,10 +30,8 @@ def commissioned(experiments_dir, sets, plants=10):
     ident = identify([record(commissioning).recording])
     job = load_experiment(experiments_dir / 'park1998_fig8.yaml').with_sets(sets)
     depths = [d for d in job.plant.depth_mm if d > 0]
-    low, high = ident.ksd_bounds_n_mm(0.1, (min(depths), max(depths)))   # cut 1 mm deep
-    identified = [*assignments('force_controller', ident.controller_parameters(low, high)),
-                  *assignments('force_estimator',
-                               ident.estimator_parameters(job.controller.reference_force_n))]
+    found = ident.parameters((min(depths), max(depths)), 1.0, job.controller.reference_force_n)
+    identified = [a for node, params in found.items() for a in assignments(node, params)]
     return ident, job, verify(job, ident, identified, 1.0, plants=plants, seed=3)
 
 

@@ -534,7 +534,7 @@ def _parse_range(text: str | None, option: str) -> tuple[float, float] | None:
 
 
 def _identify(args: argparse.Namespace) -> int:
-    from turning_force.core.experiment import assignments
+    from turning_force.core.experiment import assignments, parse_set
     from turning_force.core.identify import IdentifySettings
     from turning_force.core.verification import verify
     from turning_force.session.identify import cut_depth_mm, format_parameters, identify_sessions
@@ -546,23 +546,20 @@ def _identify(args: argparse.Namespace) -> int:
     if cut_depth is None:
         raise TurningForceError('--depths-mm needs --cut-depth-mm: the sessions do not say '
                                 'how deep the commissioning cut was')
-    scale = (depths[0] / cut_depth, depths[1] / cut_depth)
-    low, high = ident.ksd_bounds_n_mm(args.ksd_margin, scale)
     job = _verification_job(args, sessions[0].experiment, depths)
-    controller: dict[str, Any] = dict(ident.controller_parameters(low, high))
-    estimator: dict[str, Any] = dict(
-        ident.estimator_parameters(job.controller.reference_force_n))
+    found = ident.parameters(depths, cut_depth, job.controller.reference_force_n,
+                             args.ksd_margin)
+    controller, estimator = found['force_controller'], found['force_estimator']
+    low, high = float(controller['smc_ksd_min_n_mm']), float(controller['smc_ksd_max_n_mm'])
     identified = [*assignments('force_controller', controller),
                   *assignments('force_estimator', estimator)]
     predictions = verify(job, ident, identified, cut_depth, plants=args.plants)
     chosen = predictions[0]
-    for assignment in chosen.sets[len(identified):]:
-        node, _, rest = assignment.partition('.')
-        key, _, value = rest.partition('=')
-        (controller if node == 'force_controller' else estimator)[key] = _set_value(value)
-    sections: dict[str, Mapping[str, Any]] = (
-        {'force_controller': controller, 'force_estimator': estimator}
-        if chosen.name != 'defaults' else {'force_controller': {}})
+    for assignment in chosen.sets[len(identified):]:   # the chosen law's own settings
+        node, key, value = parse_set(assignment)
+        found[node][key] = value
+    sections: Mapping[str, Mapping[str, Any]] = (
+        found if chosen.name != 'defaults' else {'force_controller': {}})
     if args.json:
         print(json.dumps({**_identification_json(ident, controller, estimator, cut_depth),
                           'predictions': [dataclasses.asdict(p) for p in predictions],
@@ -601,12 +598,6 @@ def _identify(args: argparse.Namespace) -> int:
 
 
 PREDICTION = 'prediction:'   # the header line `identify` writes and `run --params` reads
-
-
-def _set_value(text: str) -> Any:
-    from turning_force.core.yamlfile import load_yaml
-
-    return load_yaml(text)
 
 
 def _verification_job(args: argparse.Namespace, commissioning: Any,

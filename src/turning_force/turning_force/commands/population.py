@@ -165,13 +165,10 @@ def commission(machine: Machine, experiments: Path = EXPERIMENTS,
         record_core(experiment, session)
         ident, sessions = identify_sessions([session], IdentifySettings())
         cut_depth = cut_depth_mm(sessions) or 1.0
-    low, high = ident.ksd_bounds_n_mm(0.1, (min(cut) / cut_depth, max(cut) / cut_depth))
     # The user verifies on the job's file: the machine as commissioned, not its drift.
     job = job_experiment(machine, after_drift=False, experiments=experiments)
-    identified = (
-        *assignments('force_controller', ident.controller_parameters(low, high)),
-        *assignments('force_estimator',
-                     ident.estimator_parameters(job.controller.reference_force_n)))
+    found = ident.parameters((min(cut), max(cut)), cut_depth, job.controller.reference_force_n)
+    identified = tuple(a for node, params in found.items() for a in assignments(node, params))
     predictions = verify(job, ident, identified, cut_depth, plants=plants,
                          seed=machine.seed + machine.index)
     return Commissioned(identified, predictions[0], tuple(predictions))

@@ -239,6 +239,17 @@ class Identification:
                  else self.noise_at_n(reference_force_n))
         return {**self.friction_model.parameters(), 'kalman_force_noise_n': noise}
 
+    def parameters(self, depths_mm: tuple[float, float], cut_depth_mm: float,
+                   reference_force_n: float, margin: float = 0.1,
+                   ) -> dict[str, dict[str, float | str]]:
+        """The ``force_controller`` and ``force_estimator`` parameters for a job cutting
+        ``depths_mm`` deep at ``reference_force_n``, the commissioning cut ``cut_depth_mm``
+        deep (the K_s d bounds scale with the depth, :meth:`ksd_bounds_n_mm`)."""
+        low, high = self.ksd_bounds_n_mm(margin, (depths_mm[0] / cut_depth_mm,
+                                                   depths_mm[1] / cut_depth_mm))
+        return {'force_controller': self.controller_parameters(low, high),
+                'force_estimator': dict(self.estimator_parameters(reference_force_n))}
+
     def ksd_bounds_n_mm(self, margin: float = 0.1, depth_scale: tuple[float, float] = (1.0, 1.0),
                         ) -> tuple[float, float]:
         """Bounds on K_s d (Park Eq. 7) around the identified value.
