@@ -101,13 +101,14 @@ def stepped(e: Experiment) -> CoreRun:
         step = chain.step(b, inputs=block.inputs)
         trace._put(k, step, reference_now)
         command = step.command or command
-        pct, sliding, reach = ((applied, 0.0, 1.0) if command is None else
-                               (command.override_pct, command.sliding_variable,
-                                float(command.reachable)))
+        pct, sliding, reach, oscillating = ((applied, 0.0, 1.0, 0.0) if command is None else
+                                            (command.override_pct, command.sliding_variable,
+                                             float(command.reachable),
+                                             float(command.oscillating)))
         rows[k] = (b.t0_s + len(b) * b.sample_period_s, block.force_n[-1],
                    step.estimate.force_n, step.estimate.force_rate_n_s,
                    e.controller.reference_force_n, block.depth_mm[-1], block.feed_mm_rev[-1],
-                   pct, applied, sliding, reach)
+                   pct, applied, sliding, reach, oscillating)
         plant_rows['force_n'][k], plant_rows['depth_mm'][k] = (block.force_n[-1],
                                                                 block.depth_mm[-1])
         plant_rows['feed_mm_rev'][k] = block.feed_mm_rev[-1]
@@ -122,7 +123,9 @@ def stepped(e: Experiment) -> CoreRun:
         metrics = compute_metrics(t['t_s'], t['force_n'], t['reference_n'], t['depth_mm'],
                                   t['applied_override_pct'],
                                   e.plant.depth_profile.change_times_s(), e.metric_settings,
-                                  reachable=t['reference_reachable'] > 0.5)
+                                  reachable=t['reference_reachable'] > 0.5,
+                                  estimate_n=t['estimated_force_n'],
+                                  oscillation_alarm=t['oscillation_alarm'])
     except NoCutError:
         metrics = {}
     result = SimulationResult(t, metrics)
@@ -243,7 +246,7 @@ def test_faults_and_settings(sets):
 def test_the_gate_s_outputs_on_the_compiled_loop_are_the_stepped_ones():
     # The gate's cut detector and overload reaction (stop): the same rows either way.
     e = load_experiment(FIG8).with_sets([
-        'pmc_bridge.overload_reaction=stop', 'pmc_bridge.reaction_force_fraction=0.25',
+        'pmc_bridge.overload_reaction=stop', 'pmc_bridge.reaction_force_fraction=0.2',
         'pmc_bridge.reaction_delay_s=0.5', 'pmc_bridge.engage_force_n=300.0',
         'lathe_sim.force_noise_fraction=0.02', 'experiment.duration_s=4.0'])
     run, reference = run_core(e), stepped(e)

@@ -11,6 +11,9 @@ from turning_force.core.pmc.settings import BridgeSettings, Reason
 
 
 def armed_gate(**changes):
+    # No force comes in: the tool is out of the cut, so the entry feed is off here to show the
+    # safety gate's decisions on the request as it is (test_shopfloor.py tests the entry feed).
+    changes.setdefault('air_cut_override_pct', 0.0)
     gate = OverrideGate(BridgeSettings(armed=True, **changes), t_s=0.0)
     gate.on_command(113.0, 0.0)
     return gate

@@ -33,6 +33,9 @@ ENABLED = InputValues(program_enable=True, threading=False)
 
 
 def gate_with(**changes) -> OverrideGate:
+    """An armed gate; the entry feed off unless asked for, so that each behaviour is seen on
+    its own (the tool is out of the cut until a test's force says otherwise)."""
+    changes.setdefault('air_cut_override_pct', 0.0)
     return OverrideGate(BridgeSettings(armed=True, **changes), t_s=0.0)
 
 
@@ -204,18 +207,24 @@ def test_the_feed_floor_holds_while_cutting_only():
 # --- air cut and the cut detector ------------------------------------------------------------
 
 
-def test_the_air_cut_override_until_the_force_rises_and_again_after_the_exit():
-    gate = gate_with(air_cut_override_pct=100.0, engage_time_s=0.02)
+def test_the_air_cut_override_until_the_cut_is_established_and_again_after_the_exit():
+    # The entry feed: the air-cut override holds through the entry, until cut_settle_s (3
+    # blocks here) after the force first passed engage_force_n, then the request goes through.
+    gate = gate_with(air_cut_override_pct=100.0, engage_time_s=0.02, cut_settle_s=0.03)
     air = block(gate, 0, 5.0, 150.0)
     assert (air.applied_pct, air.reason, air.engaged) == (100.0, Reason.AIR_CUT, False)
     assert block(gate, 1, 5.0, 80.0).applied_pct == 80.0    # never above the request
     assert block(gate, 2, 300.0, 150.0).reason == Reason.AIR_CUT   # one block: not yet
-    entered = block(gate, 3, 300.0, 150.0)
+    entering = block(gate, 3, 300.0, 150.0)
+    assert (entering.applied_pct, entering.reason, entering.engaged) == (100.0, Reason.AIR_CUT,
+                                                                         True)
+    assert block(gate, 4, 300.0, 60.0).applied_pct == 60.0   # a lower request goes through
+    entered = block(gate, 5, 300.0, 150.0)
     assert (entered.applied_pct, entered.reason, entered.engaged) == (150.0, Reason.NORMAL, True)
     # Between the thresholds (exit 50 N, engage 100 N) nothing changes: hysteresis.
-    assert block(gate, 4, 70.0, 150.0).engaged
-    assert block(gate, 5, 30.0, 150.0).engaged
-    left = block(gate, 6, 30.0, 150.0)
+    assert block(gate, 6, 70.0, 150.0).engaged
+    assert block(gate, 7, 30.0, 150.0).engaged
+    left = block(gate, 8, 30.0, 150.0)
     assert (left.applied_pct, left.reason, left.engaged) == (100.0, Reason.AIR_CUT, False)
 
 

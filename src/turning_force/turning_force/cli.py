@@ -32,7 +32,7 @@ from typing import Any, NoReturn
 
 from turning_force.core.errors import NoCutError, TurningForceError
 from turning_force.core.experiment import Experiment, load_experiment
-from turning_force.core.metrics import METRIC_NAMES
+from turning_force.core.metrics import METRIC_NAMES, OPTIONAL_METRICS
 from turning_force.core.overlay import with_parameters_file
 
 __all__ = ['main']
@@ -40,9 +40,12 @@ __all__ = ['main']
 
 def _print_metrics(title: str, metrics: dict[str, float]) -> None:
     print(title)
-    for name in (*METRIC_NAMES, 'realtime_factor'):
+    for name in (*METRIC_NAMES, *OPTIONAL_METRICS, 'realtime_factor'):
         if name in metrics:
             print(f'  {name:26s} {metrics[name]:10.3f}')
+    if metrics.get('oscillation_alarms', 0.0) > 0.0:
+        print(f'  WARNING: the loop oscillated: {metrics["oscillation_alarms"]:.0f} oscillation '
+              'alarm(s); the controller reacted as oscillation_reaction says (see docs)')
 
 
 class Interrupted(TurningForceError):

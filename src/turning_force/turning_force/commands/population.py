@@ -29,6 +29,7 @@ import numpy as np
 from turning_force.core.experiment import Experiment, assignments, load_experiment
 from turning_force.core.identify import IdentifySettings
 from turning_force.core.kernel.simulate import simulate
+from turning_force.core.pmc.shopfloor import ShopFloorSettings
 from turning_force.core.verification import Prediction, verify
 
 __all__ = ['JOBS', 'Commissioned', 'Machine', 'commission', 'draw', 'run_job']
@@ -131,13 +132,16 @@ def _drift(kind: str, plant: Mapping[str, Any],
 
 def job_experiment(machine: Machine, *, after_drift: bool = True,
                    experiments: Path = EXPERIMENTS) -> Experiment:
-    """Park's Fig. 8 file with the machine's job and the machine (drifted where it drifts)."""
+    """Park's Fig. 8 file with the machine's job and the machine (drifted where it drifts),
+    entering each cut at the product's entry feed."""
     times, depths, interpolation, duration = JOBS[machine.job]
     return load_experiment(experiments / 'park1998_fig8.yaml').with_sets([
         *machine.sets(after_drift=after_drift), f'lathe_sim.depth_times_s={list(times)!r}',
         f'lathe_sim.depth_mm={list(depths)!r}',
         f'lathe_sim.depth_interpolation={interpolation}', f'experiment.duration_s={duration!r}',
-        f'experiment.name=machine_{machine.index}'])
+        f'experiment.name=machine_{machine.index}',
+        # the product's entry feed (Park's file enters at the programmed feed, as the paper)
+        f'pmc_bridge.air_cut_override_pct={ShopFloorSettings().air_cut_override_pct!r}'])
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,10 @@
 Subscribes ``force/estimate`` (turning_force_msgs/ForceEstimate) and ``force/reference``
 (std_msgs/Float64 [N], transient-local, so a late joiner gets the last one); publishes
 ``control/feed_command`` (turning_force_msgs/FeedCommand), stamped as the estimate it answers.
+It subscribes ``pmc/feed_override`` too: the override the bridge applied is the law's state
+wherever the request did not go through as asked (the tool out of the cut or entering it, the
+gate holding or shaping it), the anti-windup of
+:func:`turning_force.core.control.update.controller_applied`.
 The law is :mod:`turning_force.core.control`, chosen by ``controller``; parameters:
 :class:`turning_force.core.control.ControllerSettings`. Reference and gains may change while
 cutting and take effect at the next control period. An estimate that is not OK (invalid input,
@@ -19,7 +23,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64
-from turning_force_msgs.msg import FeedCommand, ForceEstimate
+from turning_force_msgs.msg import FeedCommand, FeedOverride, ForceEstimate
 
 from turning_force.core.control import ControllerSettings, make_controller
 from turning_force.core.kernel.chain import command_for
@@ -47,10 +51,12 @@ class ForceControllerNode(Node):
         self.diagnostics.watch('force/estimate', stale_after_s=5 * settings.control_period_s)
         self.diagnostics.set_value('controller', settings.controller)
         self._reachable = True
+        self._oscillating = False
         self._publisher = self.create_publisher(FeedCommand, 'control/feed_command', 10)
         self._command = FeedCommand()   # refilled per estimate (rclpy serialises on publish)
         self.create_subscription(ForceEstimate, 'force/estimate', self._on_estimate, 10)
         self.create_subscription(Float64, 'force/reference', self._on_reference, REFERENCE_QOS)
+        self.create_subscription(FeedOverride, 'pmc/feed_override', self._on_applied, 10)
 
     def _retune(self, settings: ControllerSettings) -> None:
         self._controller.retune(settings)
@@ -62,6 +68,9 @@ class ForceControllerNode(Node):
         if not result.successful:
             text = f'force/reference: {value!r} N rejected: {result.reason}'
             self.diagnostics.error(text, log=True)
+
+    def _on_applied(self, msg: FeedOverride) -> None:
+        self._controller.applied(msg.applied_pct, msg.engaged, msg.reason)
 
     def _on_estimate(self, msg: ForceEstimate) -> None:
         self.diagnostics.received('force/estimate')
@@ -79,6 +88,18 @@ class ForceControllerNode(Node):
         command.header = msg.header   # the estimate's, received anew each time
         self._publisher.publish(command)
         self.diagnostics.published('control/feed_command')
+        if out.oscillating != self._oscillating:
+            self._oscillating = out.oscillating
+            self.diagnostics.set_value('oscillating', out.oscillating)
+            if out.oscillating:
+                settings = self._controller.settings
+                text = (f'the loop oscillates: the force error swings by '
+                        f'{settings.oscillation_swing_n:g} N or more, again and again; '
+                        f'oscillation_reaction {settings.oscillation_reaction}: the feed held at '
+                        f'{out.override_pct:g} % until the tool leaves the cut')
+                if settings.oscillation_reaction == 'none':
+                    text = text.split(';')[0] + '; oscillation_reaction none: regulating on'
+                self.diagnostics.warn(text, log=True)
         if out.reachable != self._reachable:
             self._reachable = out.reachable
             self.diagnostics.set_value('reference_reachable', out.reachable)

@@ -853,4 +853,5 @@ def recorded_metrics(session: Session) -> dict[str, float]:
     return compute_metrics(
         session.t_s[keep], s['force_n'][keep], reference[keep], s['depth_mm'][keep],
         s['applied_override_pct'][keep], _depth_change_times(session, experiment),
-        experiment.metric_settings, recorded_reachable(session)[keep])
+        experiment.metric_settings, recorded_reachable(session)[keep],
+        s['estimated_force_n'][keep])

@@ -23,7 +23,7 @@ import numpy as np
 import numpy.typing as npt
 from matplotlib.transforms import Bbox
 
-from turning_force.core.metrics import METRIC_NAMES
+from turning_force.core.metrics import METRIC_NAMES, OPTIONAL_METRICS
 from turning_force.core.pmc.shopfloor import CutRecord
 from turning_force.session.reader import Session
 
@@ -98,10 +98,13 @@ METRIC_LABELS = {
     'steady_mean_abs_error_n': ('steady |error|', 'N'),
     'max_abs_error_n': ('max |error|', 'N'),
     'overshoot_n': ('overshoot', 'N'),
+    'entry_overshoot_n': ('overshoot at entries', 'N'),
     'settling_time_s': ('settling time', 's'),
     'ripple_p2p_n': ('ripple p-p', 'N'),
     'override_changes_per_s': ('override changes', '1/s'),
     'reachable_fraction': ('reference reachable', 'of the cut'),
+    'estimate_error_rms_n': ('estimate error rms', 'N'),
+    'oscillation_alarms': ('oscillation alarms', ''),
     'realtime_factor': ('realtime factor', 'x'),
 }
 
@@ -244,7 +247,7 @@ def figure_png(session: Session, metrics: dict[str, float]) -> bytes:
 
     ax_table.axis('off')
     rows = [[METRIC_LABELS[k][0], f'{metrics[k]:.2f} {METRIC_LABELS[k][1]}']
-            for k in (*METRIC_NAMES, 'realtime_factor') if k in metrics]
+            for k in (*METRIC_NAMES, *OPTIONAL_METRICS, 'realtime_factor') if k in metrics]
     if experiment is not None and experiment.run.paper_steady_mean_abs_error_n:
         rows.append(['paper', f'{experiment.run.paper_steady_mean_abs_error_n:g} N'])
     if rows:   # an air cut has no metrics
@@ -283,7 +286,8 @@ def write_html_report(session: Session, metrics: dict[str, float], out: Path) ->
     rows = ''.join(
         f'<tr><td>{html.escape(METRIC_LABELS[k][0])}</td><td>{html.escape(k)}</td>'
         f'<td style="text-align:right">{metrics[k]:.3f} {html.escape(METRIC_LABELS[k][1])}</td>'
-        '</tr>' for k in (*METRIC_NAMES, 'realtime_factor') if k in metrics)
+        '</tr>' for k in (*METRIC_NAMES, *OPTIONAL_METRICS, 'realtime_factor')
+        if k in metrics)
     cuts = cut_table(session)
     cut_rows = ''.join('<tr>' + ''.join(f'<td style="text-align:right">{html.escape(c)}</td>'
                                         for c in _cut_cells(r)) + '</tr>' for r in cuts)

@@ -24,16 +24,23 @@ from turning_force.core.control.law import (
     C_LAW,
     C_MAX,
     C_MIN,
+    C_OSC_COUNT,
+    C_OSC_REACTION,
+    C_OSC_SWING,
     C_PERIOD,
     C_REF,
     C_UNREACH,
     CS_HELD,
     CS_LAW,
+    CS_O_ALARMS,
     CS_RESETS,
+    OSCILLATION_REACTIONS,
     OUT_ERR,
+    OUT_OSC,
     OUT_PCT,
     OUT_REACH,
     OUT_S,
+    OUT_SIZE,
     ControlOutput,
 )
 from turning_force.core.control.registry import CONTROLLERS, names
@@ -85,13 +92,18 @@ class Controller:
         self._state[CS_HELD] = min(max(settings.initial_override_pct, self.min_pct),
                                    self.max_pct)
         update.controller_start(self._params, self._state)
-        self._out = np.zeros(4)
+        self._out = np.zeros(OUT_SIZE)
 
     @property
     def arrays(self) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(parameters, state, levels) as ``controller_update`` reads them; the state live (a
         loop that runs it runs this controller)."""
         return self._params, self._state, self._levels
+
+    @property
+    def oscillation_alarms(self) -> int:
+        """How often the oscillation alarm was raised (:func:`.update.controller_update`)."""
+        return int(self._state[CS_O_ALARMS])
 
     @property
     def resets(self) -> int:
@@ -103,13 +115,20 @@ class Controller:
         self.settings = settings
         self._params = _params(settings, self._table)[0]
 
+    def applied(self, applied_pct: float, engaged: bool, reason: int) -> None:
+        """The override the PMC applied after the last request, whether the tool is in the
+        cut, and the gate's reason (FeedOverride's): the anti-windup of
+        :func:`.update.controller_applied`."""
+        update.control_applied(self._params, self._state, float(applied_pct), bool(engaged),
+                               int(reason))
+
     def update(self, force_n: float, force_rate_n_s: float) -> ControlOutput:
         """One control period: measured force and force rate in, override request out."""
         out = self._out
         update.control_step(self._params, self._state, self._levels, float(force_n),
                             float(force_rate_n_s), out)
         return ControlOutput(float(out[OUT_PCT]), float(out[OUT_ERR]), float(out[OUT_S]),
-                             bool(out[OUT_REACH] != 0.0))
+                             bool(out[OUT_REACH] != 0.0), bool(out[OUT_OSC] != 0.0))
 
 
 def _params(c: ControllerSettings, table: OverrideTable) -> tuple[FloatArray, int]:
@@ -125,6 +144,8 @@ def _params(c: ControllerSettings, table: OverrideTable) -> tuple[FloatArray, in
     p[C_GAP] = max(b - a for a, b in itertools.pairwise(levels))
     p[C_EF] = c.quantiser == 'error_feedback'
     p[C_UNREACH], p[C_FEED_RATE] = c.unreachable_after_s, c.programmed_feed_rate_mm_min
+    p[C_OSC_SWING], p[C_OSC_COUNT] = c.oscillation_swing_n, c.oscillation_swings
+    p[C_OSC_REACTION] = OSCILLATION_REACTIONS.index(c.oscillation_reaction)
     p[C_CONT] = table.continuous
     p[C_LAW:] = own
     return p, size

@@ -59,13 +59,25 @@ FloatArray = npt.NDArray[np.float64]
 # --- the compiled arrays ----------------------------------------------------------------------
 # Parameters every law has (cp); a law's own follow from C_LAW.
 C_KIND, C_REF, C_PERIOD, C_MIN, C_MAX, C_GAP, C_EF, C_UNREACH, C_FEED_RATE, C_CONT = range(10)
-C_LAW = 10
+C_OSC_SWING, C_OSC_COUNT, C_OSC_REACTION = range(10, 13)   # the oscillation alarm (.update)
+C_LAW = 13
 # State every law has (cs): the request held, the quantiser's carry, the time pinned at an end
-# of the table and which end, the resets; a law's own follow from CS_LAW.
-CS_HELD, CS_CARRY, CS_PINNED, CS_RESETS, CS_SIDE = range(5)
-CS_LAW = 5
-# One period's output: request, error, sliding variable, reachable.
-OUT_PCT, OUT_ERR, OUT_S, OUT_REACH = range(4)
+# of the table and which end, the resets; whether the tool is in the cut (the last override
+# applied said so); the oscillation detector's (.update): the direction of the error's current
+# swing (1 rising, -1 falling, 0 not started), its extreme so far, the turning point before,
+# the last swing, the swings counted, the time since the last turn, the alarm (1 while it
+# holds), the alarms raised, the mean level sent, the level the reaction holds (the detune
+# reaction's integral); the counted swings' half-periods' sum, and the detune reaction's
+# crossover.
+CS_HELD, CS_CARRY, CS_PINNED, CS_RESETS, CS_SIDE, CS_ENGAGED = range(6)
+(CS_O_DIR, CS_O_EXT, CS_O_LAST, CS_O_SWING, CS_O_COUNT, CS_O_SINCE, CS_O_ALARM, CS_O_ALARMS,
+ CS_O_MEAN, CS_O_HOLD, CS_O_HALVES, CS_O_CROSSOVER) = range(6, 18)
+CS_LAW = 18
+# One period's output: request, error, sliding variable, reachable, oscillation alarm.
+OUT_PCT, OUT_ERR, OUT_S, OUT_REACH, OUT_OSC = range(5)
+OUT_SIZE = 5
+# What the oscillation alarm does (oscillation_reaction).
+OSCILLATION_REACTIONS = ('detune', 'hold_mean', 'programmed_feed', 'none')
 
 
 @compiled
@@ -135,6 +147,19 @@ class ControllerBase(Settings):
     model_cutting_exponent: float = setting(1.0, 'Feed exponent g of the force the laws assume, '
                                             'F = K_s d f^g (Kienzle; 1: Park)', low=0.1,
                                             high=2.0)
+    oscillation_swing_n: float = setting(
+        40.0, 'Oscillation alarm: a swing of the force error (from one turning point to the '
+        'next) this large counts toward it; 0: no alarm', 'N', low=0.0, high=1e5, dynamic=True)
+    oscillation_swings: int = setting(
+        4, 'Oscillation alarm: this many counted swings in a row raise it, each no smaller '
+        'than 0.7 of the one before and 0.08-2 s after it (a depth step gives two: its rise '
+        'and its return; noise turns faster)', low=2, high=100, dynamic=True)
+    oscillation_reaction: str = setting(
+        'detune', 'What the oscillation alarm does until the tool leaves the cut: a slow '
+        "integral law whose crossover is a sixth of the oscillation's frequency (detune), "
+        'hold the mean override of the last second (hold_mean), ask for the programmed feed '
+        '(programmed_feed), or nothing but the alarm (none)',
+        choices=OSCILLATION_REACTIONS, dynamic=True)
 
     def check(self) -> None:
         super().check()
@@ -189,3 +214,4 @@ class ControlOutput:
     error_n: float
     sliding_variable: float
     reachable: bool = True
+    oscillating: bool = False   # the oscillation alarm (.update.controller_update) holds

@@ -23,22 +23,58 @@ from turning_force.core.control.law import (
     C_KIND,
     C_MAX,
     C_MIN,
+    C_OSC_COUNT,
+    C_OSC_REACTION,
+    C_OSC_SWING,
     C_PERIOD,
     C_REF,
     C_UNREACH,
     CS_CARRY,
+    CS_ENGAGED,
     CS_HELD,
+    CS_O_ALARM,
+    CS_O_ALARMS,
+    CS_O_COUNT,
+    CS_O_CROSSOVER,
+    CS_O_DIR,
+    CS_O_EXT,
+    CS_O_HALVES,
+    CS_O_HOLD,
+    CS_O_LAST,
+    CS_O_MEAN,
+    CS_O_SINCE,
+    CS_O_SWING,
     CS_PINNED,
     CS_RESETS,
     CS_SIDE,
     OUT_ERR,
+    OUT_OSC,
     OUT_PCT,
     OUT_REACH,
     OUT_S,
     clip,
 )
 
-__all__ = ['control_step', 'controller_start', 'controller_update']
+__all__ = ['control_applied', 'control_step', 'controller_applied', 'controller_start',
+           'controller_update']
+
+# FeedOverride.REASON_NORMAL: the controller's request went through as asked.
+REASON_NORMAL = 0
+# The oscillation detector: a turning point is where the error has come back this fraction of
+# the alarm's swing from its extreme (hysteresis against noise); a counted swing is at least
+# DECAY of the one before (a transient's swings die away, a limit cycle's do not) and comes
+# HALF_MIN_S to HALF_MAX_S after it (noise turns faster; slower is no cycle); the mean level
+# sent is taken over MEAN_S.
+OSC_HYSTERESIS, OSC_DECAY, OSC_MEAN_S = 1.0 / 3.0, 0.7, 1.0
+OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.08, 2.0
+# The detune reaction: the limit cycle's frequency w_u = 2 pi / T_u bounds the loop's; an
+# integral law on the relative feed, u' = -w_c u e / F_ref (the force being about proportional
+# to the feed, its crossover is w_c whatever the process gain), with w_c = w_u / DETUNE_RATIO
+# keeps a phase margin of about 50 degrees on a loop of dead time, servo and tau_c whose phase
+# at w_u was -180 (Astrom & Hagglund, PID Controllers, 1995, Sec. 2.9 and 4.3).
+DETUNE_RATIO = 6.0
+# oscillation_reaction's index in law.OSCILLATION_REACTIONS
+DETUNE, HOLD_MEAN, PROGRAMMED_FEED, NO_REACTION = 0, 1, 2, 3
 
 _laws = dispatch.load()
 law_step, law_reset, law_finite, law_sent = _laws.step, _laws.reset, _laws.finite, _laws.sent
@@ -79,16 +115,98 @@ def _recover(cp: np.ndarray, cs: np.ndarray, error: float, out: np.ndarray) -> N
 
 
 @compiled
+def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
+    """The error turned at ``extreme``: the swing from the turn before counts toward the
+    alarm if it is large, no smaller than OSC_DECAY of the one before, and took
+    OSC_HALF_MIN_S to OSC_HALF_MAX_S; otherwise the count starts afresh."""
+    swing, half = abs(extreme - cs[CS_O_LAST]), cs[CS_O_SINCE]
+    counts = swing >= cp[C_OSC_SWING] and OSC_HALF_MIN_S <= half <= OSC_HALF_MAX_S
+    if counts and cs[CS_O_COUNT] > 0.0 and swing >= OSC_DECAY * cs[CS_O_SWING]:
+        cs[CS_O_COUNT] += 1.0
+        cs[CS_O_HALVES] += half
+    else:
+        cs[CS_O_COUNT] = 1.0 if counts else 0.0
+        cs[CS_O_HALVES] = half if counts else 0.0
+    cs[CS_O_LAST], cs[CS_O_SWING], cs[CS_O_SINCE] = extreme, swing, 0.0
+
+
+@compiled
+def _alarm(cp: np.ndarray, cs: np.ndarray) -> None:
+    """The alarm is raised: the level the reaction starts from, and the detune reaction's
+    crossover from the limit cycle's period (twice the counted swings' mean half-period)."""
+    cs[CS_O_ALARM] = 1.0
+    cs[CS_O_ALARMS] += 1.0
+    reaction = int(cp[C_OSC_REACTION])
+    cs[CS_O_HOLD] = clip(cp, 100.0 if reaction == PROGRAMMED_FEED else cs[CS_O_MEAN])
+    period = 2.0 * cs[CS_O_HALVES] / cs[CS_O_COUNT]
+    cs[CS_O_CROSSOVER] = 2.0 * math.pi / (period * DETUNE_RATIO)
+
+
+@compiled
+def _watch(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
+    """The oscillation detector, one period of the force error in the cut.
+
+    A limit cycle is a swing of the error that keeps coming back. From one turning point of
+    the error to the next (found with a hysteresis of OSC_HYSTERESIS of the swing, so that
+    noise turns nothing), ``oscillation_swings`` swings in a row (:func:`_turn`) raise the
+    alarm. A depth step's transient gives two (its rise and its return) and then dies away.
+    """
+    if cp[C_OSC_SWING] <= 0.0:
+        return
+    if cs[CS_O_DIR] == 0.0:
+        cs[CS_O_DIR], cs[CS_O_EXT], cs[CS_O_LAST] = 1.0, error, error
+        cs[CS_O_SWING], cs[CS_O_COUNT], cs[CS_O_SINCE] = 0.0, 0.0, 0.0
+        return
+    h = OSC_HYSTERESIS * cp[C_OSC_SWING]
+    rising = cs[CS_O_DIR] > 0.0
+    cs[CS_O_SINCE] += cp[C_PERIOD]
+    if (rising and error > cs[CS_O_EXT]) or (not rising and error < cs[CS_O_EXT]):
+        cs[CS_O_EXT] = error
+    elif (rising and error < cs[CS_O_EXT] - h) or (not rising and error > cs[CS_O_EXT] + h):
+        _turn(cp, cs, cs[CS_O_EXT])
+        cs[CS_O_EXT], cs[CS_O_DIR] = error, -cs[CS_O_DIR]
+    if cs[CS_O_COUNT] >= cp[C_OSC_COUNT] and cs[CS_O_ALARM] == 0.0:
+        _alarm(cp, cs)
+
+
+@compiled
+def _react(cp: np.ndarray, cs: np.ndarray, error: float) -> float:
+    """The reaction's request while the alarm holds: the detune reaction's integral law on the
+    relative feed (DETUNE_RATIO), kept inside the table, or the held level."""
+    if int(cp[C_OSC_REACTION]) == DETUNE:
+        step = cs[CS_O_CROSSOVER] * cp[C_PERIOD] * error / cp[C_REF]
+        cs[CS_O_HOLD] = clip(cp, cs[CS_O_HOLD] * (1.0 - pymin(pymax(step, -0.5), 0.5)))
+    return cs[CS_O_HOLD]
+
+
+@compiled
+def _forget(cs: np.ndarray) -> None:
+    """Out of the cut: the detector starts afresh, the alarm and its reaction end."""
+    cs[CS_O_DIR], cs[CS_O_COUNT], cs[CS_O_ALARM] = 0.0, 0.0, 0.0
+    cs[CS_O_MEAN] = cs[CS_HELD]
+
+
+@compiled
 def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force: float,
                       rate: float, out: np.ndarray) -> None:
-    """One control period: the law, the guard on its state, the error-feedback quantiser and
-    the reachability flag; out = (pct, error, s, reachable)."""
+    """One control period: the law, the guard on its state, the error-feedback quantiser,
+    the reachability flag and the oscillation alarm with its reaction; out = (pct, error, s,
+    reachable, oscillating)."""
     error = force - cp[C_REF]
+    out[OUT_OSC] = cs[CS_O_ALARM]
     if not (math.isfinite(force) and math.isfinite(rate)):
         _recover(cp, cs, error, out)
         return
+    if cs[CS_ENGAGED] != 0.0:
+        _watch(cp, cs, error)
+        out[OUT_OSC] = cs[CS_O_ALARM]
     kind = int(cp[C_KIND])
-    law_step(kind, cp, cs, force, rate, out)
+    if cs[CS_O_ALARM] != 0.0 and int(cp[C_OSC_REACTION]) != NO_REACTION:
+        # the reaction sets the feed; the law is kept at rest on the level held
+        law_reset(kind, cp, cs)
+        out[OUT_PCT], out[OUT_ERR], out[OUT_S] = _react(cp, cs, error), error, 0.0
+    else:
+        law_step(kind, cp, cs, force, rate, out)
     if not (math.isfinite(out[OUT_PCT]) and math.isfinite(out[OUT_S])
             and law_finite(kind, cp, cs)):
         _recover(cp, cs, error, out)
@@ -103,8 +221,35 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
         cs[CS_CARRY] = pymin(pymax(request + cs[CS_CARRY] - sent, -cp[C_GAP]), cp[C_GAP])
     law_sent(kind, cp, cs, quantise(levels, continuous, sent))
     cs[CS_HELD] = sent
+    cs[CS_O_MEAN] += (sent - cs[CS_O_MEAN]) * pymin(cp[C_PERIOD] / OSC_MEAN_S, 1.0)
     out[OUT_REACH] = _track_reach(cp, cs, request, out[OUT_ERR])
     out[OUT_PCT] = sent
+
+
+@compiled
+def controller_applied(cp: np.ndarray, cs: np.ndarray, applied: float, engaged: bool,
+                       reason: int) -> None:
+    """The override the PMC applied after the controller's request (after the quantiser and
+    the gate: FeedOverride's ``applied_pct``, ``engaged`` and ``reason``). Where the request did
+    not go through as asked (the tool out of the cut, or any reason but
+    :data:`REASON_NORMAL`: disarmed, a hold, the air-cut or entry feed, the dial, the rise
+    limit), the law starts afresh from the applied level each period: conditional
+    integration, the anti-windup of Astrom & Hagglund (PID Controllers, 1995, Sec. 3.5), so
+    that no law winds up against a feed it does not set and each entry into the cut starts
+    from the feed the tool meets the work with."""
+    cs[CS_ENGAGED] = 1.0 if engaged else 0.0
+    if not engaged:
+        _forget(cs)
+    if (not engaged or reason != REASON_NORMAL) and math.isfinite(applied):
+        cs[CS_HELD] = clip(cp, applied)
+        cs[CS_CARRY] = 0.0
+        law_reset(int(cp[C_KIND]), cp, cs)
+
+
+@entry('void(float64[::1], float64[::1], float64, boolean, int64)')
+def control_applied(cp: Arr, cs: Arr, applied: float, engaged: bool, reason: int) -> None:
+    """:func:`controller_applied` from Python (the controller node, the per-block chain)."""
+    controller_applied(cp, cs, applied, engaged, reason)
 
 
 @entry('void(float64[::1], float64[::1])')

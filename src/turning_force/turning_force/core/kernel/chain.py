@@ -104,6 +104,7 @@ class ControlChain:
         if command is not None:
             self.gate.on_command(command.override_pct, t_s, command.reachable)
         decision = self.gate.answer(t_s)
+        self.controller.applied(decision.applied_pct, decision.engaged, decision.reason)
         learned = self.gate.take_learned()
         if learned is not None and not learned.refused:
             self.controller.retune(_with_reference(

@@ -21,8 +21,16 @@ from turning_force.core.compiled import (
     compiled,
     entry,
 )
-from turning_force.core.control.law import C_REF, OUT_ERR, OUT_PCT, OUT_REACH, OUT_S
-from turning_force.core.control.update import controller_update
+from turning_force.core.control.law import (
+    C_REF,
+    OUT_ERR,
+    OUT_OSC,
+    OUT_PCT,
+    OUT_REACH,
+    OUT_S,
+    OUT_SIZE,
+)
+from turning_force.core.control.update import controller_applied, controller_update
 from turning_force.core.estimation.estimator import (
     ES_DCODE,
     ES_DVAL,
@@ -75,7 +83,9 @@ def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
                dec: np.ndarray, cut: np.ndarray, cuts: np.ndarray, ncuts: np.ndarray) -> bool:
     """One block through the chain (:class:`turning_force.core.kernel.chain.ControlChain` states
     it): the machine's inputs (PE, threading, dial) -> estimator -> gate.on_estimate -> controller
-    -> gate.on_command -> gate.answer (DEC_* into ``dec``); a learning cut that has just been
+    -> gate.on_command -> gate.answer (DEC_* into ``dec``) -> the controller told the override
+    applied (its anti-windup, :func:`~turning_force.core.control.update.controller_applied`: out of
+    the cut, or where the gate held or shaped the request); a learning cut that has just been
     learned sets the controller's reference from the next block on; a cut that ended goes to
     ``cuts`` (row ncuts[0], while there is room; ncuts[0] counts them all). Returns whether the
     controller acted (``out`` its command)."""
@@ -89,6 +99,7 @@ def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
         controller_update(cp, cs, clevels, force, rate, out)
         gate_on_command(gs, out[OUT_PCT], t_end, out[OUT_REACH])
     gate_answer(gp, gs, glevels, t_end, dec)
+    controller_applied(cp, cs, dec[DEC_APPLIED], dec[DEC_ENGAGED] != 0.0, int(dec[DEC_REASON]))
     if gs[GS_LEARNED] != 0.0:
         gs[GS_LEARNED] = 0.0
         if gs[GS_L_REFUSED] == LEARN_OK:
@@ -110,7 +121,7 @@ def _trace_row(trace: np.ndarray, k: int, t_end: float, truth: np.ndarray, n: in
     trace[k, 0], trace[k, 1], trace[k, 2] = t_end, truth[0, n - 1], es[ES_F]
     trace[k, 3], trace[k, 4], trace[k, 5] = es[ES_R], cp[C_REF], truth[1, n - 1]
     trace[k, 6], trace[k, 7], trace[k, 8] = truth[2, n - 1], last[0], applied
-    trace[k, 9], trace[k, 10] = last[1], last[2]
+    trace[k, 9], trace[k, 10], trace[k, 11] = last[1], last[2], last[3]
 
 
 @compiled
@@ -138,10 +149,10 @@ def _closed_loop(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_
                  gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int, applied: float, last: Arr,
                  trace: Arr, inputs: Arr, cuts: Arr, ncuts: Arr, keep: bool, t0s: Arr, u: Arr,
                  v: Arr, angle: Arr, feed_rate: Arr, rows: Arr) -> float:
-    """The closed loop, the one the core loop and the recorded core run share: blocks k0 ..
-    k1 - 1, the plant then :func:`chain_step`, trace rows k0 .. k1 - 1; noise arrays start at
-    block k0, ``inputs`` (n, 3) at block 0. ``last`` is the command that stands (pct, sliding,
-    reachable). Where ``keep``, every block as well: its first stamp into t0s[k], its samples
+    """The closed loop, the one the core loop and the recorded core run share: blocks k0 .. k1 - 1,
+    the plant then :func:`chain_step`, trace rows k0 .. k1 - 1; noise arrays start at block k0,
+    ``inputs`` (n, 3) at block 0. ``last`` is the command that stands (pct, sliding, reachable,
+    oscillating). Where ``keep``, every block as well: its first stamp into t0s[k], its samples
     into row k of u, v, angle and feed_rate, the chain's row (CH_*) into rows[k]. Returns the
     override applied to the next block."""
     n = int(pp[P_N])
@@ -149,7 +160,7 @@ def _closed_loop(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_
     uk, vk, ak, fk = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     work = np.empty(2 * n)
     truth = np.empty((3, n))
-    out = np.full(4, math.nan)
+    out = np.full(OUT_SIZE, math.nan)
     dec = np.empty(DEC_FIELDS)
     cut = np.zeros(CUT_FIELDS)
     for k in range(k0, k1):
@@ -161,7 +172,8 @@ def _closed_loop(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_
         acted = chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, t0, dt, uk, vk, ak, fk,
                            work, inputs[k], out, dec, cut, cuts, ncuts)
         if acted:
-            last[0], last[1], last[2] = out[OUT_PCT], out[OUT_S], out[OUT_REACH]
+            last[0], last[1], last[2], last[3] = (out[OUT_PCT], out[OUT_S], out[OUT_REACH],
+                                                  out[OUT_OSC])
         if keep:
             t0s[k] = t0
             _chain_row(rows, k, es, acted, out, cp, gs, dec)
@@ -219,7 +231,7 @@ def replay_blocks(ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr, gp: Arr, gs:
     change not made (where the next stretch of blocks goes on)."""
     n, m = u.shape
     work = np.empty(2 * m)
-    out = np.full(4, math.nan)
+    out = np.full(OUT_SIZE, math.nan)
     dec = np.empty(DEC_FIELDS)
     cut = np.zeros(CUT_FIELDS)
     for k in range(n):

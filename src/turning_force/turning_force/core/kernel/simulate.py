@@ -40,6 +40,7 @@ TRACE_NAMES = (
     'applied_override_pct',  # what the PMC applied during the block
     'sliding_variable',
     'reference_reachable',  # 1 while the controller can reach the reference, else 0
+    'oscillation_alarm',    # 1 while the controller's oscillation alarm holds, else 0
 )
 
 
@@ -98,7 +99,7 @@ def run_loop(experiment: Experiment, kept: CoreArrays | None = None) -> Simulati
     rows = np.empty((steps, len(TRACE_NAMES)))
     cuts = np.zeros((steps // 2 + 1, CUT_FIELDS))
     ncuts = np.zeros(1)
-    last = np.array([applied, 0.0, 1.0])
+    last = np.array([applied, 0.0, 1.0, 0.0])
     for start in range(0, steps, CHUNK_BLOCKS):
         end = min(start + CHUNK_BLOCKS, steps)
         noise_u, noise_v, noise_f, noise_fr = plant.draw_noise(end - start)
@@ -120,7 +121,7 @@ def run_loop(experiment: Experiment, kept: CoreArrays | None = None) -> Simulati
             trace['t_s'], trace['force_n'], trace['reference_n'], trace['depth_mm'],
             trace['applied_override_pct'], depth_changes_s,
             experiment.metric_settings, reachable=trace['reference_reachable'] > 0.5,
-        )
+            estimate_n=trace['estimated_force_n'], oscillation_alarm=trace['oscillation_alarm'])
     except NoCutError:
         metrics = {}
     metrics['realtime_factor'] = experiment.run.duration_s / (time.perf_counter() - wall_start)

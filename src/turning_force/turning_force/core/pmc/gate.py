@@ -463,7 +463,8 @@ def _judge(gp: np.ndarray, gs: np.ndarray, t: float, dec: np.ndarray) -> None:
     engaged = gs[GS_ENGAGED] != 0.0
     if engaged and gp[G_FLOOR] > 0.0 and pct < gp[G_FLOOR]:
         pct, reason, code = gp[G_FLOOR], FEED_FLOOR, GD_FLOOR
-    if not engaged and gp[G_AIR] > 0.0 and pct > gp[G_AIR]:
+    entering = engaged and gs[GS_CUT_BLOCKS] <= gp[G_SETTLE]
+    if (not engaged or entering) and gp[G_AIR] > 0.0 and pct > gp[G_AIR]:
         pct, reason, code = gp[G_AIR], AIR_CUT, GD_AIR
     dial = _dial(gp, gs)
     if math.isfinite(dial):
@@ -748,7 +749,8 @@ class OverrideGate:
             GD_TEACH: f'teach-in: learning cut for {s.tool} at the programmed feed',
             GD_FLOOR: (f'request {requested:.4g} % raised to the feed floor '
                            f'({s.min_cut_override_pct:g} %) while cutting'),
-            GD_AIR: f'tool out of the cut: air-cut override {s.air_cut_override_pct:g} %',
+            GD_AIR: (f'tool out of the cut or entering it: air-cut override '
+                     f'{s.air_cut_override_pct:g} %'),
             GD_DIAL: (f"the operator's dial at {b:g} % "
                           f'({"times" if s.operator_dial == "product" else "below"} the '
                           f'request {requested:.4g} %)'),

@@ -84,8 +84,10 @@ class ShopFloorSettings(Settings):
         0.0, 'Feed floor while the tool is in the cut: a lower request is raised to it (the '
         'overload hold still holds the feed); 0: none', '%', low=0.0, high=100.0)
     air_cut_override_pct: float = setting(
-        0.0, "Override while the tool is out of the cut (AFC's FIDL, TMAC's approach "
-        "override), never above the controller's request; 0: off", '%', low=0.0, high=1000.0)
+        30.0, "Override while the tool is out of the cut and for cut_settle_s after it enters "
+        "(the entry feed: AFC's FIDL, TMAC's approach override), never above the controller's "
+        'request; the controller starts from it when the cut is established; 0: off', '%',
+        low=0.0, high=1000.0)
     engage_force_n: float = setting(
         100.0, 'Estimated force above which the tool counts as in the cut', 'N', low=0.0,
         low_open=True, high=1e5)

@@ -119,10 +119,12 @@ def fill(settings: ControllerBase) -> tuple[Sequence[float], int]:
 
 @compiled
 def reset(cp: np.ndarray, cs: np.ndarray) -> None:
-    """The model at rest at the held level, the queue full of it."""
+    """The model at rest at the held level, the queue full of it; the process gain learned so
+    far is kept (a new cut of the same tool and material), unless it is not a gain."""
     held = cs[CS_HELD]
     nx = int(cp[P_NX])
-    cs[S_GAIN] = cp[P_GAIN0]
+    if not (math.isfinite(cs[S_GAIN]) and cs[S_GAIN] > 0.0):
+        cs[S_GAIN] = cp[P_GAIN0]
     for i in range(3):
         cs[S_X + i] = 0.0
     cs[S_X] = held
