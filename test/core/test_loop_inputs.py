@@ -144,12 +144,6 @@ def test_override_cancel_mid_cut_stops_regulating_within_a_second():
     assert run.chain.alarm[k:].all()
 
 
-def test_a_feed_hold_in_the_cut_stops_regulating():
-    run = run_core(load_experiment(FIG8).with_sets(['lathe_sim.feed_hold_span_s=[6.0, 12.0]']))
-    trip = _first_trip_s(run)
-    assert trip is not None and 6.0 < trip <= 7.0
-
-
 @pytest.mark.parametrize('path', sorted(EXPERIMENTS.glob('*.yaml')), ids=lambda p: p.stem)
 def test_no_false_alarm_on_the_shipped_experiments(path):
     assert _first_trip_s(run_core(load_experiment(path))) is None
@@ -196,6 +190,25 @@ def test_the_gate_hands_back_after_the_follow_time_and_says_why():
     assert 're-arm' in after.detail
     gate.arm(0.5)
     assert not gate.feed_not_following
+
+
+def test_an_axis_that_stops_while_the_force_holds_is_not_following():
+    # A feed hold as the gate sees it: the axis at 0 with the override steady at 50 %.
+    gate = gate_in_cut()
+    assert feed_blocks(gate, 0.0, 29).reason == Reason.NORMAL
+    assert feed_blocks(gate, 0.0, 1, k0=229).reason == Reason.FEED_NOT_FOLLOWING
+
+
+def test_an_underdamped_servo_may_overshoot_a_swing_of_the_override():
+    # The override swings 0 -> 150 %: a servo of damping 0.3 overshoots by 37 % of the swing;
+    # the envelope allows half of it (feed_follow_overshoot) beyond the tolerance.
+    gate = gate_in_cut()
+    for k in range(200, 260):   # a limit cycle between the ends of the table
+        t = (k + 1) * 0.01
+        gate.on_estimate(500.0)
+        gate.on_feed(120.0 * (1.5 + 0.5) if k % 20 < 10 else -0.5 * 120.0)
+        gate.on_command(150.0 if k % 20 < 10 else 0.0, t)
+        assert gate.answer(t).reason == Reason.NORMAL
 
 
 def test_the_gate_judges_the_feed_at_the_live_spindle_speed():

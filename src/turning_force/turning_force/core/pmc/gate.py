@@ -39,8 +39,8 @@ G_RISE, G_FLOOR, G_AIR, G_TEACH, G_TEACH_FRACTION = range(21, 26)
 G_RECENT_AT, G_PENDING_AT, G_PENDING_CAP, G_WINDOW_AT = range(26, 30)
 # the feed-follow check: how long, how far [% points], the axis's lag, the programmed feed
 # [mm/rev] and the spindle_speed_rpm parameter
-G_FOLLOW_S, G_FOLLOW_TOL, G_FOLLOW_LAG, G_FEED_REV, G_RPM = range(30, 35)
-G_SIZE = 35
+G_FOLLOW_S, G_FOLLOW_TOL, G_FOLLOW_LAG, G_FEED_REV, G_RPM, G_FOLLOW_OVER = range(30, 36)
+G_SIZE = 36
 REACTION_NONE, REACTION_ALARM, REACTION_STOP, REACTION_HOLD = 0, 1, 2, 3
 DIAL_MIN, DIAL_PRODUCT, DIAL_IGNORE = 0, 1, 2
 # hold causes (the overload hold's detail): saturated, not finite, above the limit
@@ -406,7 +406,9 @@ def gate_feed(gp: np.ndarray, gs: np.ndarray, feed_mm_min: float, rpm: float) ->
     (its mean), against the override the PMC applied during it. The axis lags the override
     (the PMC's dead time, the servo): it may run anywhere inside an envelope of the applied
     override that takes a rise or a fall at once on one side and follows it on the other with
-    the lag ``feed_follow_lag_s``, give or take ``feed_follow_tolerance_pct``. Outside it for
+    the lag ``feed_follow_lag_s``, give or take ``feed_follow_tolerance_pct`` and
+    ``feed_follow_overshoot`` of the envelope's width (an underdamped servo overshoots a large
+    swing of the override by a share of it). Outside it for
     ``feed_follow_time_s`` while the tool is in the cut and the gate regulates (armed, not
     stood down), the feed does not follow the override (override cancel, a feed hold, a dry
     run, a ladder that does not copy the override): the gate stops regulating and hands the
@@ -423,7 +425,7 @@ def gate_feed(gp: np.ndarray, gs: np.ndarray, feed_mm_min: float, rpm: float) ->
     if not (rpm > 0.0 and math.isfinite(rpm)):
         rpm = gp[G_RPM]
     actual = 100.0 * feed_mm_min / (gp[G_FEED_REV] * rpm)
-    tolerance = gp[G_FOLLOW_TOL]
+    tolerance = gp[G_FOLLOW_TOL] + gp[G_FOLLOW_OVER] * (gs[GS_F_HI] - gs[GS_F_LO])
     above, below = actual > gs[GS_F_HI] + tolerance, actual < gs[GS_F_LO] - tolerance
     judged = (gs[GS_ARMED] != 0.0 and gs[GS_ENGAGED] != 0.0
               and _stand_down(gp, gs) == STAND_NONE)
@@ -929,7 +931,7 @@ def _gate_params(s: BridgeSettings, table: OverrideTable) -> FloatArray:
     p[G_AIR], p[G_TEACH] = s.air_cut_override_pct, s.teach_in
     p[G_TEACH_FRACTION] = s.teach_fraction
     p[G_FOLLOW_S], p[G_FOLLOW_TOL] = s.feed_follow_time_s, s.feed_follow_tolerance_pct
-    p[G_FOLLOW_LAG] = s.feed_follow_lag_s
+    p[G_FOLLOW_LAG], p[G_FOLLOW_OVER] = s.feed_follow_lag_s, s.feed_follow_overshoot
     p[G_FEED_REV], p[G_RPM] = s.programmed_feed_mm_rev, s.spindle_speed_rpm
     p[G_RECENT_AT] = GS_FIXED
     p[G_PENDING_AT] = GS_FIXED + BLOCK_FIELDS * debounce
