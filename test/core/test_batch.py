@@ -88,7 +88,8 @@ def stepped(e: Experiment) -> CoreRun:
     trace = ChainTrace._empty(n)
     rows = np.empty((n, len(TRACE_NAMES)))
     plant_rows = {name: np.empty(n) for name in ('force_n', 'depth_mm', 'feed_mm_rev',
-                                                  'feed_rate_mm_min', 'override_pct')}
+                                                  'feed_rate_mm_min', 'override_pct',
+                                                  'spindle_speed_rpm')}
     command = None
     for k in range(n):
         reference_now = chain.controller.settings.reference_force_n
@@ -108,14 +109,15 @@ def stepped(e: Experiment) -> CoreRun:
         rows[k] = (b.t0_s + len(b) * b.sample_period_s, block.force_n[-1],
                    step.estimate.force_n, step.estimate.force_rate_n_s,
                    e.controller.reference_force_n, block.depth_mm[-1], block.feed_mm_rev[-1],
-                   pct, applied, sliding, reach, oscillating)
+                   pct, applied, sliding, reach, oscillating, block.spindle_speed_rpm,
+                   int(step.decision.reason))
+        plant_rows['spindle_speed_rpm'][k] = block.spindle_speed_rpm
         plant_rows['force_n'][k], plant_rows['depth_mm'][k] = (block.force_n[-1],
                                                                 block.depth_mm[-1])
         plant_rows['feed_mm_rev'][k] = block.feed_mm_rev[-1]
         plant_rows['feed_rate_mm_min'][k] = b.feed_rate_mm_min[-1]
         plant_rows['override_pct'][k] = applied
         applied = step.decision.applied_pct
-    plant_rows['spindle_speed_rpm'] = np.full(n, e.plant.spindle_speed_rpm)
     plant_rows['specific_cutting_force_n_mm2'] = np.full(
         n, e.plant.specific_cutting_force_n_mm2)
     t = {name: rows[:, i] for i, name in enumerate(TRACE_NAMES)}
@@ -142,10 +144,19 @@ def assert_simulates(run: CoreRun, e: Experiment) -> None:
             assert run.result.metrics[name] == value, name
 
 
-def plant_inputs(e: Experiment, currents: CurrentArrays) -> InputArrays:
-    """The simulated machine's inputs at each block's end, as the core loop hands them on."""
+def plant_inputs(e: Experiment, currents: CurrentArrays,
+                 spindle_speed_rpm: np.ndarray | None = None) -> InputArrays:
+    """The simulated machine's inputs at each block's end, as the core loop hands them on (the
+    spindle speed the run recorded, where its input is wired)."""
     ends = currents.t_end_s
-    return InputArrays.collect(lambda k: e.plant.inputs_at(float(ends[k])), len(currents))
+
+    def at(k: int) -> InputValues:
+        inputs = e.plant.inputs_at(float(ends[k]))
+        if spindle_speed_rpm is None or not e.plant.spindle_speed_wired:
+            return inputs
+        return dataclasses.replace(inputs, spindle_speed_rpm=float(spindle_speed_rpm[k]))
+
+    return InputArrays.collect(at, len(currents))
 
 
 def replayed_stepwise(e: Experiment, currents: CurrentArrays, changes: list[tuple[float, bool]],
@@ -158,7 +169,7 @@ def replayed_stepwise(e: Experiment, currents: CurrentArrays, changes: list[tupl
 def replays_itself(run: CoreRun, e: Experiment) -> ChainTrace:
     """Open loop over the run's own currents: the same chain, row for row."""
     trace = replay_chain(e, run.currents, [(0.0, e.bridge.armed)],
-                         plant_inputs(e, run.currents))
+                         plant_inputs(e, run.currents, run.result.trace['spindle_speed_rpm']))
     assert_same_chain(trace, run.chain)
     return trace
 
@@ -426,7 +437,7 @@ def test_input_arrays_carry_the_last_given():
     assert inputs(0) is None
     assert inputs(1) == InputValues(True, None, 80.0)
     assert inputs(3) == InputValues(False, True, None)
-    enable, threading, dial = inputs.seen()
+    enable, threading, dial, _ = inputs.seen()
     np.testing.assert_array_equal(enable, [-1, 1, 1, 0, 0])
     np.testing.assert_array_equal(threading, [-1, -1, -1, 1, 1])
     np.testing.assert_array_equal(dial, [math.nan, 80.0, 80.0, math.nan, math.nan])

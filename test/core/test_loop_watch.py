@@ -14,6 +14,7 @@ import pytest
 from test_kernel import FIG8
 
 from turning_force.core.control import make_controller
+from turning_force.core.control.law import ControllerBase
 from turning_force.core.experiment import load_experiment
 from turning_force.core.kernel.simulate import SimulationResult, simulate
 from turning_force.core.metrics import MetricSettings, compute_metrics
@@ -26,6 +27,9 @@ INTERRUPTED = ['lathe_sim.depth_times_s=[0.0, 3.0, 4.0, 7.0, 8.0]',
                'lathe_sim.depth_mm=[1.0, 0.0, 2.0, 0.0, 3.0]', 'experiment.duration_s=11.0']
 PRODUCT_ENTRY = f'pmc_bridge.air_cut_override_pct={ShopFloorSettings().air_cut_override_pct!r}'
 PRODUCT_QUANTISER = 'force_controller.quantiser=error_feedback'
+# Park's files keep the paper's law alone (no reaction); the product reacts.
+PRODUCT_REACTION = ('force_controller.oscillation_reaction='
+                    f'{ControllerBase.__dataclass_fields__["oscillation_reaction"].default}')
 
 
 def run(*sets: str) -> SimulationResult:
@@ -102,13 +106,13 @@ def test_a_law_out_of_the_cut_starts_from_the_applied_override(law):
 def test_an_oscillating_loop_is_alarmed_within_2_s_and_the_reaction_calms_it():
     # The issue's case: the uncommissioned SMC on a 100 ms PMC dead time (726 N peak to peak).
     dead = ['lathe_sim.pmc_dead_time_s=0.1', PRODUCT_QUANTISER]
-    left = run(*dead, 'force_controller.oscillation_reaction=none')
+    left = run(*dead)
     onset = oscillation_onset_s(left)
     assert onset is not None and left.metrics['ripple_p2p_n'] > 300.0
     alarm = first_alarm_s(left)
     assert alarm is not None and alarm <= onset + 2.0
     assert left.metrics['oscillation_alarms'] == 1.0
-    calmed = run(*dead)
+    calmed = run(*dead, PRODUCT_REACTION)
     assert first_alarm_s(calmed) == alarm   # the same loop up to the alarm
     assert calmed.metrics['ripple_p2p_n'] < 25.0   # the issue's bound after the reaction
 

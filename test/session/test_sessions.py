@@ -33,7 +33,7 @@ from turning_force.session.report import write_report
 # force/measured: a dynamometer's, recorded where one is fitted (none here: no messages).
 TOPICS = {'/servo/currents', '/servo/joint_state', '/sim/cutting_state', '/force/estimate',
           '/control/feed_command', '/pmc/feed_override', '/force/reference', '/diagnostics',
-          '/force/measured', '/machine/inputs', '/pmc/cuts'}
+          '/force/measured', '/machine/inputs', '/machine/spindle_speed', '/pmc/cuts'}
 
 
 @pytest.fixture(scope='module')

@@ -34,6 +34,7 @@ from turning_force.core.errors import NoCutError, TurningForceError
 from turning_force.core.experiment import Experiment, load_experiment
 from turning_force.core.metrics import METRIC_NAMES, OPTIONAL_METRICS
 from turning_force.core.overlay import with_parameters_file
+from turning_force.core.pmc.settings import handed_back
 
 __all__ = ['main']
 
@@ -153,6 +154,7 @@ def _run(args: argparse.Namespace) -> int:
             recorded = record_core(experiment, bag, progress)
         result = recorded.run.result
         metrics = result.metrics
+        stopped = handed_back(result.trace['t_s'], result.trace['override_reason'])
         out: dict[str, Any] = {'experiment': experiment.run.name, 'session': str(bag),
                                'metrics': metrics}
     elif args.core:
@@ -161,6 +163,7 @@ def _run(args: argparse.Namespace) -> int:
         with _signals(defer=False):
             result = simulate(experiment)
         metrics = result.metrics
+        stopped = handed_back(result.trace['t_s'], result.trace['override_reason'])
         out = {'experiment': experiment.run.name, 'metrics': metrics}
     else:
         from turning_force.session.reader import read_session, recorded_metrics
@@ -176,6 +179,7 @@ def _run(args: argparse.Namespace) -> int:
         _check_writable(bag, '--out' if args.out else '', new=True)
         outcome = _lockstep(args, experiment, bag)
         session = read_session(bag)
+        stopped = handed_back(session.t_s, session.signals['override_reason'])
         try:
             metrics = recorded_metrics(session)
         except NoCutError:
@@ -184,10 +188,14 @@ def _run(args: argparse.Namespace) -> int:
         figure = write_report(session, metrics, Path(f'{bag}.png'))
         out = {'experiment': experiment.run.name, 'session': str(bag), 'figure': str(figure),
                'executor': outcome.executor, 'metrics': metrics}
+    if stopped:
+        out['handed_back'] = stopped
     if args.json:
         print(json.dumps(out))
         return 0
     print(f'{experiment.run.name}: {experiment.run.description}')
+    if stopped:
+        print(f'  {stopped}')
     if experiment.run.paper_figure:
         paper = experiment.run.paper_steady_mean_abs_error_n
         print(f'  reproduces {experiment.run.paper_figure}'

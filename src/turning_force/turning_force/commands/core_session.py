@@ -54,14 +54,16 @@ TOPICS: dict[str, str] = {
     '/control/feed_command': 'turning_force_msgs/msg/FeedCommand',
     '/pmc/feed_override': 'turning_force_msgs/msg/FeedOverride',
     '/machine/inputs': 'turning_force_msgs/msg/MachineInputs',
+    '/machine/spindle_speed': 'std_msgs/msg/Float64',
     '/pmc/cuts': 'turning_force_msgs/msg/CutRecord',
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     '/force/measured': 'geometry_msgs/msg/WrenchStamped',
 }
 # Per block, in the order the graph's messages reach the recorder (a cut that ended is
 # published by the bridge as it answers the block, before the override).
-PER_BLOCK = ('/machine/inputs', '/servo/currents', '/servo/joint_state', '/sim/cutting_state',
-             '/force/estimate', '/control/feed_command', '/pmc/cuts', '/pmc/feed_override')
+PER_BLOCK = ('/machine/inputs', '/machine/spindle_speed', '/servo/currents', '/servo/joint_state',
+             '/sim/cutting_state', '/force/estimate', '/control/feed_command', '/pmc/cuts',
+             '/pmc/feed_override')
 NOT_RECORDED = ('/diagnostics', '/force/reference', '/force/measured')
 # Custom data saying who recorded the session.
 RECORDER = 'turning_force.recorder'
@@ -151,10 +153,12 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
         k = slice(start, min(start + BATCH_BLOCKS, n))
         count = k.stop - k.start
         last = last_ns[k]
-        messages = {
+        messages: dict[str, tuple[dict[str, Any], Any]] = {
             '/machine/inputs': ({**_stamp(last), 'program_enable': chain.program_enable[k],
                                  'threading': chain.threading[k],
                                  'operator_dial_pct': chain.operator_dial_pct[k]}, None),
+            '/machine/spindle_speed': ({'data': plant['spindle_speed_rpm'][k]},
+                                       np.full(count, experiment.plant.spindle_speed_wired)),
             '/servo/currents': ({**_stamp(first_ns[k]), 'header.frame_id': FRAME,
                                  'sample_period_s': c.sample_period_s,
                                  'phase_u_a': c.phase_u_a[k], 'phase_v_a': c.phase_v_a[k],

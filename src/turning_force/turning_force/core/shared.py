@@ -17,6 +17,7 @@ __all__ = [
     'max_feed_force_n',
     'programmed_feed_mm_rev',
     'spindle_speed_rpm',
+    'spindle_speed_stale_s',
 ]
 
 
@@ -28,6 +29,12 @@ def control_period_s() -> Any:
 
 def spindle_speed_rpm() -> Any:
     return setting(600.0, 'Spindle speed N', 'rpm', low=0.0, low_open=True, high=20000.0)
+
+
+def spindle_speed_stale_s() -> Any:
+    return setting(0.5, 'The live spindle speed (machine/spindle_speed) older than this counts as '
+                   'unplugged: spindle_speed_rpm is used and /diagnostics warns; 0: the topic is '
+                   'not read', 's', low=0.0, high=60.0)
 
 
 def programmed_feed_mm_rev() -> Any:

@@ -1,7 +1,9 @@
 """``force_controller``: the force control law, once per force estimate.
 
-Subscribes ``force/estimate`` (turning_force_msgs/ForceEstimate) and ``force/reference``
-(std_msgs/Float64 [N], transient-local, so a late joiner gets the last one); publishes
+Subscribes ``force/estimate`` (turning_force_msgs/ForceEstimate), ``force/reference``
+(std_msgs/Float64 [N], transient-local, so a late joiner gets the last one) and
+``machine/spindle_speed`` (std_msgs/Float64 [rpm]: the laws' spindle speed while it is fresh, else
+``spindle_speed_rpm``, :class:`turning_force.nodes.spindle.SpindleSpeedInput`); publishes
 ``control/feed_command`` (turning_force_msgs/FeedCommand), stamped as the estimate it answers.
 It subscribes ``pmc/feed_override`` too: the override the bridge applied is the law's state
 wherever the request did not go through as asked (the tool out of the cut or entering it, the
@@ -31,6 +33,7 @@ from turning_force.nodes.convert import estimate_from_msg
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
 from turning_force.nodes.spin import run_nodes
+from turning_force.nodes.spindle import SpindleSpeedInput
 
 __all__ = ['REFERENCE_QOS', 'ForceControllerNode', 'main']
 
@@ -52,6 +55,8 @@ class ForceControllerNode(Node):
         self.diagnostics.set_value('controller', settings.controller)
         self._reachable = True
         self._oscillating = False
+        self.spindle = SpindleSpeedInput(self, self.diagnostics, settings.spindle_speed_stale_s,
+                                         settings.spindle_speed_rpm)
         self._publisher = self.create_publisher(FeedCommand, 'control/feed_command', 10)
         self._command = FeedCommand()   # refilled per estimate (rclpy serialises on publish)
         self.create_subscription(ForceEstimate, 'force/estimate', self._on_estimate, 10)
@@ -60,6 +65,7 @@ class ForceControllerNode(Node):
 
     def _retune(self, settings: ControllerSettings) -> None:
         self._controller.retune(settings)
+        self.spindle.parameter_rpm = settings.spindle_speed_rpm
 
     def _on_reference(self, msg: Float64) -> None:
         self.diagnostics.received('force/reference')
@@ -74,6 +80,7 @@ class ForceControllerNode(Node):
 
     def _on_estimate(self, msg: ForceEstimate) -> None:
         self.diagnostics.received('force/estimate')
+        self._controller.spindle_speed(self.spindle.rpm())
         out = command_for(self._controller, estimate_from_msg(msg))
         if out is None:
             self.diagnostics.warn(f'force/estimate status {msg.status}: {msg.detail}')

@@ -3,7 +3,9 @@
 Subscribes ``pmc/feed_override`` (turning_force_msgs/FeedOverride): the PMC bits are decoded with
 the override table, as the CNC would read them. Publishes, once per control period,
 ``machine/inputs`` (the simulated program enable, threading and dial, before the block's
-currents so that the bridge has them when it answers), ``servo/currents`` (a block of DAQ
+currents so that the bridge has them when it answers), ``machine/spindle_speed``
+(std_msgs/Float64 [rpm], the spindle encoder's speed at the block's end, unless
+``spindle_speed_wired`` is false: the input unplugged), ``servo/currents`` (a block of DAQ
 samples), ``servo/joint_state`` (feed axis ``z``: position [m], velocity [m/s], effort = true
 cutting force [N]) and ``sim/cutting_state`` (ground truth); with ``dynamometer`` also
 ``force/measured`` (geometry_msgs/WrenchStamped, ``wrench.force.z`` [N], for ``turning-force
@@ -32,6 +34,7 @@ from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
 from turning_force_msgs.msg import CuttingState, FeedOverride, MachineInputs, ServoCurrents
 
 from turning_force.core import kernel
@@ -50,6 +53,7 @@ from turning_force.nodes.convert import (
 from turning_force.nodes.diagnostics import AnswerLatency, Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
 from turning_force.nodes.spin import run_nodes, timer_callback
+from turning_force.nodes.spindle import SPINDLE_SPEED_TOPIC
 
 __all__ = ['LatheSimNode', 'main']
 
@@ -108,6 +112,9 @@ class LatheSimNode(Node):
         self._clock_publisher = (self.create_publisher(Clock, '/clock', 10)
                                  if self._publish_clock else None)
         self._inputs = self.create_publisher(MachineInputs, 'machine/inputs', 10)
+        self._speed_msg = Float64()
+        self._speed = (self.create_publisher(Float64, SPINDLE_SPEED_TOPIC, 10)
+                       if settings.spindle_speed_wired else None)
         self._currents = self.create_publisher(ServoCurrents, 'servo/currents', 10)
         self._joint = self.create_publisher(JointState, 'servo/joint_state', 10)
         self._truth = self.create_publisher(CuttingState, 'sim/cutting_state', 10)
@@ -211,6 +218,10 @@ class LatheSimNode(Node):
         inputs = inputs_to_msg(block.inputs, self._inputs_msg)   # before the currents: the
         set_stamp(inputs.header.stamp, last_ns)   # bridge's answer to this block must see them
         self._inputs.publish(inputs)
+        if self._speed is not None:
+            self._speed_msg.data = float(block.spindle_speed_rpm)
+            self._speed.publish(self._speed_msg)
+            self.diagnostics.published(SPINDLE_SPEED_TOPIC)
         joint = self._joint_msg
         set_stamp(joint.header.stamp, last_ns)
         joint.position = [self._plant.position_mm / 1000.0]
@@ -222,7 +233,7 @@ class LatheSimNode(Node):
         set_stamp(truth.header.stamp, last_ns)
         truth.force_n = float(block.force_n[-1])
         truth.depth_of_cut_mm = float(block.depth_mm[-1])
-        truth.spindle_speed_rpm = float(s.spindle_speed_rpm)
+        truth.spindle_speed_rpm = float(block.spindle_speed_rpm)
         truth.feed_mm_rev = float(block.feed_mm_rev[-1])
         truth.feed_rate_mm_min = float(currents.feed_rate_mm_min[-1])
         truth.specific_cutting_force_n_mm2 = float(s.specific_cutting_force_n_mm2)

@@ -1,9 +1,12 @@
 """``pmc_bridge``: what reaches the CNC's PMC, safe first. A lifecycle (managed) node.
 
 Subscribes ``control/feed_command`` (turning_force_msgs/FeedCommand), ``force/estimate``
-(turning_force_msgs/ForceEstimate) and ``machine/inputs``; publishes ``pmc/feed_override``
-(turning_force_msgs/FeedOverride), ``pmc/cuts`` (turning_force_msgs/CutRecord) and, with
-``teach_file``, ``force/reference`` (std_msgs/Float64, transient-local); writes the PMC backend.
+(turning_force_msgs/ForceEstimate), ``machine/inputs``, ``servo/currents`` (the axis feed the DAQ
+recorded, against the override applied: the gate's feed-follow check) and
+``machine/spindle_speed`` (the speed that check judges the feed at); publishes
+``pmc/feed_override`` (turning_force_msgs/FeedOverride), ``pmc/cuts``
+(turning_force_msgs/CutRecord) and, with ``teach_file``, ``force/reference`` (std_msgs/Float64,
+transient-local); writes the PMC backend.
 Parameters: :class:`turning_force.core.pmc.settings.BridgeSettings`, and ``autostart`` (configure
 and activate at start). The decisions (disarmed, watchdog, invalid command, overload hold, the
 shop-floor behaviours) are :class:`turning_force.core.pmc.gate.OverrideGate`'s.
@@ -20,11 +23,13 @@ from the module where the machine file wires them, else from ``machine/inputs``;
 
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
@@ -36,6 +41,7 @@ from turning_force_msgs.msg import (
     FeedOverride,
     ForceEstimate,
     MachineInputs,
+    ServoCurrents,
 )
 
 from turning_force.core import kernel
@@ -57,6 +63,7 @@ from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.parameters import SettingsParameters
 from turning_force.nodes.spin import NodeTime, run_nodes, timer_callback
+from turning_force.nodes.spindle import SpindleSpeedInput
 
 __all__ = ['BridgeStartError', 'PmcBridgeNode', 'SimulatedPmc', 'main']
 
@@ -125,6 +132,10 @@ class PmcBridgeNode(LifecycleNode):
         self.create_subscription(MachineInputs, 'machine/inputs', self._on_inputs, 10)
         self.create_subscription(FeedCommand, 'control/feed_command', self._on_command, 10)
         self.create_subscription(ForceEstimate, 'force/estimate', self._on_estimate, 10)
+        self._feed_mm_min = math.nan   # the last block's mean axis feed, until its estimate
+        self.create_subscription(ServoCurrents, 'servo/currents', self._on_currents, 10)
+        self.spindle = SpindleSpeedInput(self, self.diagnostics, settings.spindle_speed_stale_s,
+                                         settings.spindle_speed_rpm)
         self.create_service(Trigger, '~/arm', self._on_arm)
         self.create_service(Trigger, '~/disarm', self._on_disarm)
         self.create_timer(settings.control_period_s, timer_callback(self._on_timer))
@@ -390,11 +401,19 @@ class PmcBridgeNode(LifecycleNode):
         topic's."""
         self.gate.on_inputs(self._module_inputs.over(self._topic_inputs))
 
+    def _on_currents(self, msg: ServoCurrents) -> None:
+        self.diagnostics.received('servo/currents')
+        feed = msg.feed_rate_mm_min
+        self._feed_mm_min = float(np.mean(feed)) if len(feed) else math.nan
+
     def _on_estimate(self, msg: ForceEstimate) -> None:
         self.diagnostics.received('force/estimate')
         estimate = estimate_from_msg(msg)
         if self._active and self.gate.on_estimate(estimate.force_n, estimate.status):
             self._write(self.gate.decide(self._now_s()), None)  # hold now, not at next command
+        if self._active:   # the block's feed, judged as the chain does: after its estimate
+            self.gate.on_feed(self._feed_mm_min, self.spindle.rpm())
+        self._feed_mm_min = math.nan
         if command_for_would_act(estimate):
             return   # the controller's command for this block will answer it
         # No command will answer this block: the gate answers it (watchdog, hold), stamped as

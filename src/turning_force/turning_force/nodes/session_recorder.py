@@ -67,6 +67,7 @@ GRAPH_TOPICS: dict[str, type] = {
     'control/feed_command': FeedCommand,
     'pmc/feed_override': FeedOverride,
     'machine/inputs': MachineInputs,
+    'machine/spindle_speed': Float64,
     'pmc/cuts': CutRecord,
     '/diagnostics': DiagnosticArray,
     'force/measured': WrenchStamped,

@@ -8,6 +8,7 @@ period at a time and the compiled loops many periods at once.
 from __future__ import annotations
 
 import itertools
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,6 +20,7 @@ from turning_force.core.control.law import (
     C_CONT,
     C_EF,
     C_FEED_RATE,
+    C_FEED_REV,
     C_GAP,
     C_KIND,
     C_LAW,
@@ -29,6 +31,8 @@ from turning_force.core.control.law import (
     C_OSC_SWING,
     C_PERIOD,
     C_REF,
+    C_RPM,
+    C_RPM_SET,
     C_UNREACH,
     CS_HELD,
     CS_LAW,
@@ -42,6 +46,7 @@ from turning_force.core.control.law import (
     OUT_S,
     OUT_SIZE,
     ControlOutput,
+    set_spindle_speed,
 )
 from turning_force.core.control.registry import CONTROLLERS, names
 from turning_force.core.pmc.overrides import OverrideTable, get_table
@@ -93,6 +98,7 @@ class Controller:
                                    self.max_pct)
         update.controller_start(self._params, self._state)
         self._out = np.zeros(OUT_SIZE)
+        self._rpm = math.nan
 
     @property
     def arrays(self) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -114,6 +120,18 @@ class Controller:
         """Take new dynamic settings (reference, gains) from the next update on."""
         self.settings = settings
         self._params = _params(settings, self._table)[0]
+        set_spindle_speed(self._params, self._rpm)
+
+    def spindle_speed(self, rpm: float) -> None:
+        """The live spindle speed [rpm] from the next update on (NaN: the ``spindle_speed_rpm``
+        parameter again): :func:`~turning_force.core.control.law.spindle_speed`."""
+        self._rpm = float(rpm)
+        set_spindle_speed(self._params, self._rpm)
+
+    @property
+    def spindle_speed_rpm(self) -> float:
+        """The spindle speed the laws use now [rpm]."""
+        return float(self._params[C_RPM])
 
     def applied(self, applied_pct: float, engaged: bool, reason: int) -> None:
         """The override the PMC applied after the last request, whether the tool is in the
@@ -147,5 +165,7 @@ def _params(c: ControllerSettings, table: OverrideTable) -> tuple[FloatArray, in
     p[C_OSC_SWING], p[C_OSC_COUNT] = c.oscillation_swing_n, c.oscillation_swings
     p[C_OSC_REACTION] = OSCILLATION_REACTIONS.index(c.oscillation_reaction)
     p[C_CONT] = table.continuous
+    p[C_FEED_REV] = c.programmed_feed_mm_rev
+    p[C_RPM_SET] = p[C_RPM] = c.spindle_speed_rpm
     p[C_LAW:] = own
     return p, size

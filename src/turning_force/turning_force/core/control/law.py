@@ -35,7 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core import shared
-from turning_force.core.compiled import compiled, pymax, pymin
+from turning_force.core.compiled import Arr, compiled, entry, pymax, pymin
 from turning_force.core.pmc.overrides import get_table, override_table
 from turning_force.core.settings import Settings, setting
 
@@ -43,6 +43,7 @@ __all__ = [
     'CS_HELD',
     'CS_LAW',
     'C_LAW',
+    'C_RPM',
     'OUT_ERR',
     'OUT_PCT',
     'OUT_S',
@@ -52,6 +53,8 @@ __all__ = [
     'clip',
     'feed_rate',
     'pct',
+    'set_spindle_speed',
+    'spindle_speed',
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -60,7 +63,10 @@ FloatArray = npt.NDArray[np.float64]
 # Parameters every law has (cp); a law's own follow from C_LAW.
 C_KIND, C_REF, C_PERIOD, C_MIN, C_MAX, C_GAP, C_EF, C_UNREACH, C_FEED_RATE, C_CONT = range(10)
 C_OSC_SWING, C_OSC_COUNT, C_OSC_REACTION = range(10, 13)   # the oscillation alarm (.update)
-C_LAW = 13
+# The spindle: the programmed feed [mm/rev], the spindle_speed_rpm parameter, the speed in use
+# (the live one, machine/spindle_speed, where it is given: :func:`spindle_speed`).
+C_FEED_REV, C_RPM_SET, C_RPM = range(13, 16)
+C_LAW = 16
 # State every law has (cs): the request held, the quantiser's carry, the time pinned at an end
 # of the table and which end, the resets; whether the tool is in the cut (the last override
 # applied said so); the oscillation detector's (.update): the direction of the error's current
@@ -78,6 +84,24 @@ OUT_PCT, OUT_ERR, OUT_S, OUT_REACH, OUT_OSC = range(5)
 OUT_SIZE = 5
 # What the oscillation alarm does (oscillation_reaction).
 OSCILLATION_REACTIONS = ('detune', 'hold_mean', 'programmed_feed', 'none')
+
+
+@compiled
+def spindle_speed(cp: np.ndarray, rpm: float) -> None:
+    """The spindle speed every law uses from now on [rpm]: the live one (machine/spindle_speed;
+    under constant surface speed, G96, it changes through a cut), or where that is not given
+    (NaN) or not above 0, the ``spindle_speed_rpm`` parameter. The feed rate of the 100 %
+    override (``C_FEED_RATE``, :func:`pct`, :func:`feed_rate`) follows it."""
+    if not (rpm > 0.0 and math.isfinite(rpm)):
+        rpm = cp[C_RPM_SET]
+    cp[C_RPM] = rpm
+    cp[C_FEED_RATE] = cp[C_FEED_REV] * rpm
+
+
+@entry('void(float64[::1], float64)')
+def set_spindle_speed(cp: Arr, rpm: float) -> None:
+    """:func:`spindle_speed` from Python (the controller node)."""
+    spindle_speed(cp, rpm)
 
 
 @compiled
@@ -113,6 +137,7 @@ class ControllerBase(Settings):
                                        high=1e5, dynamic=True)
     control_period_s: float = shared.control_period_s()
     spindle_speed_rpm: float = shared.spindle_speed_rpm()
+    spindle_speed_stale_s: float = shared.spindle_speed_stale_s()
     programmed_feed_mm_rev: float = shared.programmed_feed_mm_rev()
     override_table: str = override_table()
     max_feed_force_n: float = shared.max_feed_force_n()

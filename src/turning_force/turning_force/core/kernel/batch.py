@@ -24,6 +24,7 @@ from turning_force.core.estimation.settings import EstimatorSettings
 from turning_force.core.experiment import Experiment
 from turning_force.core.plant.drive import CurrentBlock
 from turning_force.core.pmc.overrides import OverrideTable, get_table
+from turning_force.core.pmc.settings import BridgeSettings
 from turning_force.core.pmc.shopfloor import CutRecord, InputValues
 
 if TYPE_CHECKING:   # the compiled chain, imported where it runs: reading a session needs none
@@ -112,7 +113,8 @@ def _same(a: float, b: float) -> bool:
 class InputArrays:
     """The machine's inputs each decision saw, as arrays (n,): ``given`` False where a block
     carries none (the last given stand); ``program_enable`` and ``threading`` 1 set, 0 clear,
-    -1 not wired (``FeedOverride``'s tristate); ``operator_dial_pct`` NaN where not read.
+    -1 not wired (``FeedOverride``'s tristate); ``operator_dial_pct`` and
+    ``spindle_speed_rpm`` NaN where not read.
 
     Callable as ``inputs(k)``, so it goes wherever a function of the block does; replay hands
     it to the kernel without a Python call per block."""
@@ -121,6 +123,16 @@ class InputArrays:
     program_enable: Int8Array
     threading: Int8Array
     operator_dial_pct: FloatArray
+    spindle_speed_rpm: FloatArray | None = None   # None: never given
+
+    def __post_init__(self) -> None:
+        if self.spindle_speed_rpm is None:
+            object.__setattr__(self, 'spindle_speed_rpm', np.full(self.given.size, np.nan))
+
+    @property
+    def _speeds(self) -> FloatArray:
+        assert self.spindle_speed_rpm is not None   # __post_init__
+        return self.spindle_speed_rpm
 
     def __len__(self) -> int:
         return int(self.given.size)
@@ -130,15 +142,17 @@ class InputArrays:
             return None
         enable, threading, dial = (int(self.program_enable[k]), int(self.threading[k]),
                                    float(self.operator_dial_pct[k]))
+        speed = float(self._speeds[k])
         return InputValues(None if enable < 0 else bool(enable),
                            None if threading < 0 else bool(threading),
-                           None if math.isnan(dial) else dial)
+                           None if math.isnan(dial) else dial,
+                           None if math.isnan(speed) else speed)
 
     @classmethod
     def collect(cls, inputs: Callable[[int], InputValues | None], n: int) -> InputArrays:
         """``inputs(k)`` for every block."""
         out = cls(np.zeros(n, dtype=np.bool_), np.full(n, -1, dtype=np.int8),
-                  np.full(n, -1, dtype=np.int8), np.full(n, np.nan))
+                  np.full(n, -1, dtype=np.int8), np.full(n, np.nan), np.full(n, np.nan))
         for k in range(n):
             values = inputs(k)
             if values is not None:
@@ -147,11 +161,13 @@ class InputArrays:
                 out.threading[k] = _tristate(values.threading)
                 if values.operator_dial_pct is not None:
                     out.operator_dial_pct[k] = values.operator_dial_pct
+                if values.spindle_speed_rpm is not None:
+                    out._speeds[k] = values.spindle_speed_rpm
         return out
 
-    def seen(self) -> tuple[Int8Array, Int8Array, FloatArray]:
+    def seen(self) -> tuple[Int8Array, Int8Array, FloatArray, FloatArray]:
         """What each decision saw: the last inputs given up to its block (none before the
-        first), as (program_enable, threading, operator_dial_pct)."""
+        first), as (program_enable, threading, operator_dial_pct, spindle_speed_rpm)."""
         n = len(self)
         index = np.where(self.given, np.arange(n), -1)
         np.maximum.accumulate(index, out=index)
@@ -160,7 +176,8 @@ class InputArrays:
         enable = np.where(known, self.program_enable[at], -1).astype(np.int8)
         threading = np.where(known, self.threading[at], -1).astype(np.int8)
         dial = np.where(known, self.operator_dial_pct[at], np.nan)
-        return enable, threading, dial
+        speed = np.where(known, self._speeds[at], np.nan)
+        return enable, threading, dial, speed
 
 
 def _tristate(value: bool | None) -> int:
@@ -263,6 +280,14 @@ class CoreRun:
 
 # --- replay ---------------------------------------------------------------------------------
 
+def open_loop(experiment: Experiment) -> BridgeSettings:
+    """The bridge's settings for an open-loop replay: the feed-follow check off. The recorded
+    axis feed followed the overrides the session applied, not the ones the replay decides, so
+    the check cannot be judged on it (a replay with other settings would find the feed
+    "not following" wherever its decisions differ)."""
+    return experiment.bridge.replace(feed_follow_time_s=0.0)
+
+
 def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[CurrentBlock],
                  arm_changes: Sequence[tuple[float, bool]] = (),
                  inputs: Callable[[int], InputValues | None] | None = None,
@@ -297,23 +322,24 @@ def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[Curr
             inputs if isinstance(inputs, InputArrays) else InputArrays.collect(inputs, n))
     from turning_force.core.kernel.chain import ControlChain
 
-    chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
+    chain = ControlChain(experiment.estimator, experiment.controller, open_loop(experiment),
                          reference_force_n=reference_force_n)
     trace = _replay_compiled(chain, arrays, arm_changes, seen, progress)
     if seen is not None:
-        trace.program_enable[:], trace.threading[:], trace.operator_dial_pct[:] = seen.seen()
+        trace.program_enable[:], trace.threading[:], trace.operator_dial_pct[:], _ = seen.seen()
     return trace
 
 
 def _inputs_matrix(seen: InputArrays | None, n: int) -> FloatArray:
-    """The inputs each decision saw as the kernel takes them: (n, 3) program enable,
-    threading (1 set, 0 clear), the operator's dial; NaN where not wired or not given yet."""
-    out = np.full((n, 3), np.nan)
+    """The inputs each decision saw as the kernel takes them: (n, 4) program enable,
+    threading (1 set, 0 clear), the operator's dial, the spindle speed; NaN where not wired or
+    not given yet."""
+    out = np.full((n, 4), np.nan)
     if seen is not None:
-        enable, threading, dial = seen.seen()
+        enable, threading, dial, speed = seen.seen()
         out[:, 0] = np.where(enable < 0, np.nan, enable)
         out[:, 1] = np.where(threading < 0, np.nan, threading)
-        out[:, 2] = dial
+        out[:, 2], out[:, 3] = dial, speed
     return out
 
 
@@ -325,7 +351,7 @@ def _replay_blocks(experiment: Experiment, blocks: Callable[[int], CurrentBlock]
     """:class:`ControlChain` block by block, for blocks no one array holds."""
     from turning_force.core.kernel.chain import ControlChain
 
-    chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge,
+    chain = ControlChain(experiment.estimator, experiment.controller, open_loop(experiment),
                          reference_force_n=reference_force_n)
     trace = ChainTrace._empty(n)
     changes = list(arm_changes)
@@ -483,7 +509,7 @@ def run_core(experiment: Experiment) -> CoreRun:
         'feed_mm_rev': t['feed_mm_rev'],
         'feed_rate_mm_min': currents.feed_rate_mm_min[:, -1].copy() if n else np.empty(0),
         'override_pct': t['applied_override_pct'],
-        'spindle_speed_rpm': np.full(n, plant_settings.spindle_speed_rpm),
+        'spindle_speed_rpm': t['spindle_speed_rpm'],
         'specific_cutting_force_n_mm2': np.full(n, plant_settings.specific_cutting_force_n_mm2),
     }
     cuts = [cut_record(row, experiment.bridge.tool) for row in result.cut_rows]

@@ -4,6 +4,8 @@ The chain is what the graph does between the DAQ and the PMC, in the graph's ord
 
     machine inputs                      -> OverrideGate.on_inputs
     block -> ForceEstimator -> estimate -> OverrideGate.on_estimate (overload, cut detector)
+    block's axis feed, spindle speed    -> OverrideGate.on_feed (the feed follows the override)
+    spindle speed                       -> the controller's (Controller.spindle_speed)
                                         -> command_for (controller)  -> OverrideGate.on_command
                                         -> OverrideGate.answer -> Decision (to the PMC)
 
@@ -89,17 +91,23 @@ class ControlChain:
         self.controller = make_controller(controller)
         self.gate = OverrideGate(bridge, t_s=t_s)
         self.cuts: list[CutRecord] = []
+        self._spindle_speed_rpm = math.nan   # as the machine's inputs last gave it
 
     def step(self, block: CurrentBlock, t_s: float | None = None,
              inputs: InputValues | None = None) -> ChainStep:
         """Run one block through the chain; ``t_s`` defaults to the end of the block;
-        ``inputs``, the machine's inputs at its end, as last given where None."""
+        ``inputs``, the machine's inputs at its end (the live spindle speed among them; where
+        it is not given, the spindle_speed_rpm parameter), as last given where None."""
         if t_s is None:
             t_s = block.t0_s + len(block) * block.sample_period_s
         if inputs is not None:
             self.gate.on_inputs(inputs)
+            speed = inputs.spindle_speed_rpm
+            self._spindle_speed_rpm = math.nan if speed is None else speed
         estimate = self.estimator.update(block)
         self.gate.on_estimate(estimate.force_n, estimate.status)
+        self.gate.on_feed(float(np.mean(block.feed_rate_mm_min)), self._spindle_speed_rpm)
+        self.controller.spindle_speed(self._spindle_speed_rpm)
         command = command_for(self.controller, estimate)
         if command is not None:
             self.gate.on_command(command.override_pct, t_s, command.reachable)

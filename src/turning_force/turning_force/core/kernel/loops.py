@@ -29,6 +29,7 @@ from turning_force.core.control.law import (
     OUT_REACH,
     OUT_S,
     OUT_SIZE,
+    spindle_speed,
 )
 from turning_force.core.control.update import controller_applied, controller_update
 from turning_force.core.estimation.estimator import (
@@ -43,7 +44,7 @@ from turning_force.core.estimation.estimator import (
     SATURATED,
     estimator_update,
 )
-from turning_force.core.plant.lathe import P_DT, P_N, plant_step
+from turning_force.core.plant.lathe import P_DT, P_N, P_SPEED_WIRED, TRUTH_ROWS, plant_step
 from turning_force.core.pmc.gate import (
     CUT_FIELDS,
     CUT_READY,
@@ -62,6 +63,7 @@ from turning_force.core.pmc.gate import (
     LEARN_OK,
     gate_answer,
     gate_arm,
+    gate_feed,
     gate_inputs,
     gate_on_command,
     gate_on_estimate,
@@ -82,18 +84,22 @@ def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
                feed: np.ndarray, work: np.ndarray, inputs: np.ndarray, out: np.ndarray,
                dec: np.ndarray, cut: np.ndarray, cuts: np.ndarray, ncuts: np.ndarray) -> bool:
     """One block through the chain (:class:`turning_force.core.kernel.chain.ControlChain` states
-    it): the machine's inputs (PE, threading, dial) -> estimator -> gate.on_estimate -> controller
-    -> gate.on_command -> gate.answer (DEC_* into ``dec``) -> the controller told the override
-    applied (its anti-windup, :func:`~turning_force.core.control.update.controller_applied`: out of
-    the cut, or where the gate held or shaped the request); a learning cut that has just been
-    learned sets the controller's reference from the next block on; a cut that ended goes to
-    ``cuts`` (row ncuts[0], while there is room; ncuts[0] counts them all). Returns whether the
-    controller acted (``out`` its command)."""
+    it): the machine's inputs (PE, threading, dial, spindle speed: ``inputs`` (4,), NaN where
+    not given) -> estimator -> gate.on_estimate, gate.on_feed (the axis feed against the
+    override) -> controller (at the spindle speed) -> gate.on_command -> gate.answer (DEC_*
+    into ``dec``) -> the controller told the override applied (its anti-windup,
+    :func:`~turning_force.core.control.update.controller_applied`: out of the cut, or where the
+    gate held or shaped the request); a learning cut that has just been learned sets the
+    controller's reference from the next block on; a cut that ended goes to ``cuts`` (row
+    ncuts[0], while there is room; ncuts[0] counts them all). Returns whether the controller
+    acted (``out`` its command)."""
     t_end = t0 + u.size * dt
     gate_inputs(gs, inputs[0], inputs[1], inputs[2])
     status = estimator_update(ep, es, t0, dt, u, v, angle, feed, work)
     force, rate = es[ES_F], es[ES_R]
     gate_on_estimate(gp, gs, force, status, cut)
+    gate_feed(gp, gs, np.mean(feed), inputs[3])
+    spindle_speed(cp, inputs[3])
     acted = (status == OK or status == SATURATED) and math.isfinite(force)  # noqa: SIM109
     if acted:
         controller_update(cp, cs, clevels, force, rate, out)
@@ -116,12 +122,14 @@ def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
 
 @compiled
 def _trace_row(trace: np.ndarray, k: int, t_end: float, truth: np.ndarray, n: int,
-               es: np.ndarray, cp: np.ndarray, last: np.ndarray, applied: float) -> None:
+               es: np.ndarray, cp: np.ndarray, last: np.ndarray, applied: float,
+               reason: float) -> None:
     """Row k of the core loop's trace (core/simulate.py TRACE_NAMES)."""
     trace[k, 0], trace[k, 1], trace[k, 2] = t_end, truth[0, n - 1], es[ES_F]
     trace[k, 3], trace[k, 4], trace[k, 5] = es[ES_R], cp[C_REF], truth[1, n - 1]
     trace[k, 6], trace[k, 7], trace[k, 8] = truth[2, n - 1], last[0], applied
     trace[k, 9], trace[k, 10], trace[k, 11] = last[1], last[2], last[3]
+    trace[k, 12], trace[k, 13] = truth[3, n - 1], reason
 
 
 @compiled
@@ -149,17 +157,18 @@ def _closed_loop(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_
                  gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int, applied: float, last: Arr,
                  trace: Arr, inputs: Arr, cuts: Arr, ncuts: Arr, keep: bool, t0s: Arr, u: Arr,
                  v: Arr, angle: Arr, feed_rate: Arr, rows: Arr) -> float:
-    """The closed loop, the one the core loop and the recorded core run share: blocks k0 .. k1 - 1,
-    the plant then :func:`chain_step`, trace rows k0 .. k1 - 1; noise arrays start at block k0,
-    ``inputs`` (n, 3) at block 0. ``last`` is the command that stands (pct, sliding, reachable,
-    oscillating). Where ``keep``, every block as well: its first stamp into t0s[k], its samples
-    into row k of u, v, angle and feed_rate, the chain's row (CH_*) into rows[k]. Returns the
-    override applied to the next block."""
+    """The closed loop, the one the core loop and the recorded core run share: blocks k0 ..
+    k1 - 1, the plant then :func:`chain_step`, trace rows k0 .. k1 - 1; noise arrays start at
+    block k0, ``inputs`` (n, 4) at block 0 (where the plant's spindle speed input is wired, its
+    column 3 is written from the plant's speed block by block). ``last`` is the command that
+    stands (pct, sliding, reachable, oscillating). Where ``keep``, every block as well: its
+    first stamp into t0s[k], its samples into row k of u, v, angle and feed_rate, the chain's
+    row (CH_*) into rows[k]. Returns the override applied to the next block."""
     n = int(pp[P_N])
     dt = pp[P_DT]
     uk, vk, ak, fk = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     work = np.empty(2 * n)
-    truth = np.empty((3, n))
+    truth = np.empty((TRUTH_ROWS, n))
     out = np.full(OUT_SIZE, math.nan)
     dec = np.empty(DEC_FIELDS)
     cut = np.zeros(CUT_FIELDS)
@@ -169,6 +178,8 @@ def _closed_loop(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_
             uk, vk, ak, fk = u[k], v[k], angle[k], feed_rate[k]
         t0 = plant_step(pp, ps, times, depths, applied, noise_u, noise_v, noise_f, noise_fr,
                         lo, uk, vk, ak, fk, truth)
+        if pp[P_SPEED_WIRED] != 0.0:   # the spindle encoder's speed at the block's end
+            inputs[k, 3] = truth[3, n - 1]
         acted = chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, t0, dt, uk, vk, ak, fk,
                            work, inputs[k], out, dec, cut, cuts, ncuts)
         if acted:
@@ -177,7 +188,7 @@ def _closed_loop(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_
         if keep:
             t0s[k] = t0
             _chain_row(rows, k, es, acted, out, cp, gs, dec)
-        _trace_row(trace, k, t0 + n * dt, truth, n, es, cp, last, applied)
+        _trace_row(trace, k, t0 + n * dt, truth, n, es, cp, last, applied, dec[DEC_REASON])
         applied = dec[DEC_APPLIED]
     return applied
 
@@ -225,7 +236,7 @@ def replay_blocks(ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr, gp: Arr, gs:
                   cuts: Arr, ncuts: Arr) -> int:
     """Replay (session/replay.py): blocks of recorded currents (n, m) through
     :func:`chain_step`, open loop, each decision at the block's end, with the machine's
-    recorded inputs (n, 3); before each block, the gate armed (at the change's time) or
+    recorded inputs (n, 4); before each block, the gate armed (at the change's time) or
     disarmed for every change (arm_times, arm_states 1/0, in order, from index ``change`` on)
     up to the block's end. The chain's rows (CH_*) into rows; returns the index of the first
     change not made (where the next stretch of blocks goes on)."""

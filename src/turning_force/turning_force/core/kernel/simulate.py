@@ -41,6 +41,8 @@ TRACE_NAMES = (
     'sliding_variable',
     'reference_reachable',  # 1 while the controller can reach the reference, else 0
     'oscillation_alarm',    # 1 while the controller's oscillation alarm holds, else 0
+    'spindle_speed_rpm',    # the spindle's true speed at the end of the block
+    'override_reason',      # why the override answering the block is what it is (Reason)
 )
 
 

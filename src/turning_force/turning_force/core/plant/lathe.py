@@ -5,17 +5,18 @@ and its settings). """
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import numpy.typing as npt
 
 from turning_force.core import lti
-from turning_force.core.compiled import Arr, activate, compiled, delayed, entry, pymod
+from turning_force.core.compiled import Arr, activate, compiled, delayed, entry, pymin, pymod
 from turning_force.core.plant.drive import CurrentBlock
 from turning_force.core.plant.feeddrive import friction_current
 from turning_force.core.plant.settings import PlantBlock, PlantSettings
 
-__all__ = ['LathePlant', 'plant_step']
+__all__ = ['TRUTH_ROWS', 'LathePlant', 'commanded_rate', 'plant_step', 'spindle_rpm']
 
 FloatArray = npt.NDArray[np.float64]
 _SQRT3 = math.sqrt(3.0)
@@ -27,12 +28,56 @@ P_FAULT_START, P_FAULT_DUR, P_ANGLE_C, P_PITCH = range(9, 13)
 P_FR_A, P_FR_B, P_FR_MIN, P_FR_MAX, P_MAP_OFF, P_MAP_PER = range(13, 19)
 P_SERVO_LEN, P_SB, P_SA = 19, 20, 23          # b and a: 3 slots each
 P_PB, P_PA, P_DELAY, P_LINEAR, P_FEED_NOISE = 26, 28, 30, 31, 32
-P_SIZE = 33
+# constant surface speed (G96): V [m/min] (0: off), the start diameter, the clamp (G50 S), and
+# the programmed feed [mm/rev]; the machine not following the override: [start, end) of override
+# cancel (M49), feed hold and dry run, and the dry-run feed rate
+P_CSS, P_CSS_D0, P_RPM_MAX, P_FEED_REV = 33, 34, 35, 36
+P_CANCEL, P_HOLD, P_DRY, P_DRY_RATE = 37, 39, 41, 43
+P_SPEED_WIRED = 44   # the spindle speed input (machine/spindle_speed) wired
+P_SIZE = 45
+# truth rows: force, depth, feed [mm/rev], spindle speed [rpm]
+TRUTH_ROWS = 4
 # plant state
 PS_POS, PS_K, PS_QIDX, PS_SZ, PS_PZ, PS_QUEUE = 0, 1, 2, 3, 5, 6
 
 
 # --- the plant (core/plant.py LathePlant.step) ----------------------------------------------
+
+@compiled
+def spindle_rpm(pp: np.ndarray, position_mm: float) -> float:
+    """The spindle speed [rpm]: ``spindle_speed_rpm``, or under constant surface speed (G96)
+    a facing cut's, ``N = 1000 V / (pi D)`` with ``D = D0 - 2 x`` (the feed axis is the cross
+    slide: its travel x [mm] takes the diameter down by twice as much), clamped at the largest
+    speed the program allows (G50 S)."""
+    if pp[P_CSS] <= 0.0:
+        return pp[P_RPM]
+    diameter = pp[P_CSS_D0] - 2.0 * position_mm
+    if diameter <= 0.0:
+        return pp[P_RPM_MAX]
+    return pymin(1000.0 * pp[P_CSS] / (math.pi * diameter), pp[P_RPM_MAX])
+
+
+@compiled
+def _within(pp: np.ndarray, span: int, t: float) -> bool:
+    return pp[span] <= t < pp[span + 1]
+
+
+@compiled
+def commanded_rate(pp: np.ndarray, t: float, override_pct: float, rpm: float) -> float:
+    """The axis feed rate the CNC commands [mm/min] for the override the PMC was written: the
+    programmed feed per revolution at the override (G95) and the spindle speed, unless the
+    machine does not follow the override: a dry run (the dry-run rate, whatever the override),
+    a feed hold (0), override cancel (M49, or a ladder that never copies the module's inputs to
+    *FV: 100 %)."""
+    if _within(pp, P_DRY, t):
+        return pp[P_DRY_RATE]
+    if _within(pp, P_HOLD, t):
+        return 0.0
+    pct = 100.0 if _within(pp, P_CANCEL, t) else override_pct
+    if pp[P_CSS] > 0.0:
+        return pct / 100.0 * pp[P_FEED_REV] * rpm
+    return pct / 100.0 * pp[P_FEED_RATE]
+
 
 @compiled
 def depth_at(times: np.ndarray, depths: np.ndarray, linear: bool, t: float) -> float:
@@ -76,13 +121,15 @@ def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.nda
     Eq. 25) -> u, v phase currents at the rotor angle, plus sensor noise.
 
     The DAQ's arrays into u, v, angle, feed_rate (the measured feed rate: ``noise_fr`` added
-    where ``P_FEED_NOISE``); the true force, depth and feed [mm/rev] of every sample into rows
-    0, 1 and 2 of ``truth`` (3, n); returns the block's t0. Noise samples are read from ``lo``
-    on (drawn in Python from the plant's own Generator)."""
+    where ``P_FEED_NOISE``); the true force, depth, feed [mm/rev] and spindle speed [rpm] of
+    every sample into rows 0-3 of ``truth`` (TRUTH_ROWS, n); returns the block's t0. Noise
+    samples are read from ``lo`` on (drawn in Python from the plant's own Generator)."""
     n = int(pp[P_N])
     dt = pp[P_DT]
     k = int(ps[PS_K])
-    commanded = override_pct / 100.0 * pp[P_FEED_RATE]
+    rpm = spindle_rpm(pp, ps[PS_POS])
+    commanded = commanded_rate(pp, float(k) * dt, override_pct, rpm)
+    css = pp[P_CSS] > 0.0
     delay = int(pp[P_DELAY])
     order = int(pp[P_SERVO_LEN]) - 1
     sb0, sb1, sb2 = pp[P_SB], pp[P_SB + 1], pp[P_SB + 2]
@@ -94,8 +141,12 @@ def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.nda
     position0 = ps[PS_POS]
     fault_end = pp[P_FAULT_START] + pp[P_FAULT_DUR]
     linear = pp[P_LINEAR] != 0.0
+    position = position0
     for i in range(n):
         t = float(k + i) * dt
+        if css:
+            rpm = spindle_rpm(pp, position)
+            commanded = commanded_rate(pp, float(k) * dt, override_pct, rpm)
         servo_in = delayed(ps, PS_QUEUE, PS_QIDX, delay, commanded)
         # Direct form II transposed (scipy's lfilter), a[0] == 1.
         if order == 1:
@@ -108,7 +159,7 @@ def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.nda
         cumulative = fr if i == 0 else cumulative + fr
         position = position0 + cumulative * dt / 60.0
         depth = depth_at(times, depths, linear, t)
-        feed = (fr if fr >= 0.0 or fr != fr else 0.0) / pp[P_RPM]
+        feed = (fr if fr >= 0.0 or fr != fr else 0.0) / rpm
         g = pp[P_G]
         if g == 1.0:
             powered = feed
@@ -143,7 +194,7 @@ def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.nda
             pv = math.nan
         measured = fr + noise_fr[lo + i] if pp[P_FEED_NOISE] > 0.0 else fr
         u[i], v[i], angle[i], feed_rate[i] = pu, pv, theta, measured
-        truth[0, i], truth[1, i], truth[2, i] = force, depth, feed
+        truth[0, i], truth[1, i], truth[2, i], truth[3, i] = force, depth, feed, rpm
     ps[PS_POS] = position
     ps[PS_SZ], ps[PS_SZ + 1], ps[PS_PZ] = z0, z1, pz
     ps[PS_K] = k + n
@@ -233,13 +284,16 @@ class LathePlant:
         s, n = self.settings, self.samples_per_block
         noise_u, noise_v, noise_f, noise_fr = self.draw_noise(1)
         u, v, angle, feed_rate = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-        truth = np.empty((3, n))
+        truth = np.empty((TRUTH_ROWS, n))
         t0 = plant_block(self._params, self._state, self._times, self._depths,
                          float(override_pct), noise_u, noise_v, noise_f, noise_fr, 0, u, v,
                          angle, feed_rate, truth)
         block = CurrentBlock(float(t0), self._dt, u, v, angle, feed_rate)
+        speed = float(truth[3, -1])
         inputs = s.inputs_at(block.t0_s + n * self._dt)
-        return PlantBlock(block, truth[0], truth[1], truth[2], override_pct, inputs)
+        if s.spindle_speed_wired:
+            inputs = replace(inputs, spindle_speed_rpm=speed)
+        return PlantBlock(block, truth[0], truth[1], truth[2], override_pct, inputs, speed)
 
 
 def _plant_arrays(s: PlantSettings, samples_per_block: int,
@@ -248,6 +302,8 @@ def _plant_arrays(s: PlantSettings, samples_per_block: int,
     steady state at the initial override, the PMC's queue full of it, no force."""
     dt = 1.0 / s.sample_rate_hz
     v0 = initial_override_pct / 100.0 * s.programmed_feed_rate_mm_min
+    if s.css_surface_speed_m_min > 0:
+        v0 = initial_override_pct / 100.0 * s.programmed_feed_mm_rev * s.start_spindle_speed_rpm
     if s.servo_model == 'first_order':
         sb, sa = lti.zoh([1.0], [s.servo_time_constant_s, 1.0], dt)
     else:
@@ -270,6 +326,13 @@ def _plant_arrays(s: PlantSettings, samples_per_block: int,
     p[P_SB:P_SB + sb.size], p[P_SA:P_SA + sa.size] = sb, sa
     p[P_DELAY] = delay
     p[P_LINEAR] = s.depth_interpolation == 'linear'
+    p[P_CSS], p[P_CSS_D0] = s.css_surface_speed_m_min, s.css_start_diameter_mm
+    p[P_RPM_MAX], p[P_FEED_REV] = s.css_max_spindle_rpm, s.programmed_feed_mm_rev
+    p[P_CANCEL:P_CANCEL + 2] = s.override_cancel_span_s
+    p[P_HOLD:P_HOLD + 2] = s.feed_hold_span_s
+    p[P_DRY:P_DRY + 2] = s.dry_run_span_s
+    p[P_DRY_RATE] = s.dry_run_feed_mm_min
+    p[P_SPEED_WIRED] = s.spindle_speed_wired
     state = np.zeros(PS_QUEUE + delay)
     # The servo's steady state at v0: its output v0 for a constant input v0 (unit DC gain).
     zi = lti.lfiltic(sb, sa, [v0] * sa.size, [v0 / float(np.sum(sb) / np.sum(sa))] * sb.size)

@@ -17,6 +17,7 @@ module holds the plant's settings and what it gives.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -105,6 +106,31 @@ class PlantSettings(FeedDriveSettings):
     operator_dial_pct: tuple[float, ...] = setting(
         [100.0], "The simulated operator's dial from each of operator_dial_times_s on", '%',
         low=0.0, high=1000.0)
+    css_surface_speed_m_min: float = setting(
+        0.0, 'Constant surface speed (G96) of a facing cut: the spindle speed rises as the '
+        'feed axis (the cross slide) takes the diameter down, N = 1000 V / (pi D); 0: the '
+        'spindle turns at spindle_speed_rpm', 'm/min', low=0.0, high=2000.0)
+    css_start_diameter_mm: float = setting(100.0, 'Constant surface speed: the diameter the '
+                                           'facing cut starts at', 'mm', low=0.0,
+                                           low_open=True, high=5000.0)
+    css_max_spindle_rpm: float = setting(1500.0, 'Constant surface speed: the largest spindle '
+                                         'speed the program allows (G50 S)', 'rpm', low=0.0,
+                                         low_open=True, high=20000.0)
+    spindle_speed_wired: bool = setting(True, 'The simulated machine gives its spindle speed '
+                                        '(machine/spindle_speed, from the spindle encoder); '
+                                        'false: the input unplugged')
+    override_cancel_span_s: tuple[float, ...] = setting(
+        [0.0, 0.0], 'Fault injection: override cancel (M49) within this [start, end): the feed '
+        'at 100 % whatever the PMC is written (a ladder that never copies the override to *FV: '
+        'the whole run)', 's', low=0.0, high=3600.0)
+    feed_hold_span_s: tuple[float, ...] = setting(
+        [0.0, 0.0], 'Fault injection: feed hold within this [start, end): the axis stops', 's',
+        low=0.0, high=3600.0)
+    dry_run_span_s: tuple[float, ...] = setting(
+        [0.0, 0.0], 'Fault injection: dry run within this [start, end): the axis at '
+        'dry_run_feed_mm_min whatever the override', 's', low=0.0, high=3600.0)
+    dry_run_feed_mm_min: float = setting(1000.0, 'The dry-run feed rate', 'mm/min', low=0.0,
+                                         high=1e5)
     pole_pairs: int = setting(4, 'Pole pairs of the feed servo motor', low=1, high=64)
     ball_screw_pitch_mm: float = setting(12.0, 'Ball-screw pitch (motor on the screw)', 'mm',
                                          low=0.0, low_open=True)
@@ -118,6 +144,10 @@ class PlantSettings(FeedDriveSettings):
             self.fail('depth_times_s', 'must start at 0')
         if any(b <= a for a, b in zip(self.depth_times_s, self.depth_times_s[1:], strict=False)):
             self.fail('depth_times_s', 'must be strictly increasing')
+        for name in ('override_cancel_span_s', 'feed_hold_span_s', 'dry_run_span_s'):
+            span = getattr(self, name)
+            if len(span) != 2 or span[1] < span[0]:
+                self.fail(name, 'expected one [start, end) pair, its end at or after its start')
         for name in ('program_enable_spans_s', 'threading_spans_s'):
             spans = getattr(self, name)
             if len(spans) % 2 or any(b < a for a, b in zip(spans[::2], spans[1::2],
@@ -144,14 +174,24 @@ class PlantSettings(FeedDriveSettings):
         return self.programmed_feed_mm_rev * self.spindle_speed_rpm
 
     @property
+    def start_spindle_speed_rpm(self) -> float:
+        """The spindle speed at the start: under constant surface speed the start diameter's
+        (:func:`turning_force.core.plant.lathe.spindle_rpm`)."""
+        if self.css_surface_speed_m_min <= 0:
+            return self.spindle_speed_rpm
+        return min(1000.0 * self.css_surface_speed_m_min / (math.pi * self.css_start_diameter_mm),
+                   self.css_max_spindle_rpm)
+
+    @property
     def depth_profile(self) -> DepthProfile:
         return DepthProfile(self.depth_times_s, self.depth_mm, self.depth_interpolation)
 
     def inputs_array(self, t_s: FloatArray) -> FloatArray:
-        """:meth:`inputs_at` for many times at once: (n, 3) program enable, threading (1 set,
-        0 clear) and the operator's dial [%], NaN where not wired."""
+        """:meth:`inputs_at` for many times at once: (n, 4) program enable, threading (1 set,
+        0 clear), the operator's dial [%] and the spindle speed [rpm] (left NaN: the closed loop
+        writes the plant's), NaN where not wired."""
         t = np.round(np.asarray(t_s, dtype=np.float64), 9)
-        out = np.full((t.size, 3), np.nan)
+        out = np.full((t.size, 4), np.nan)
         for column, spans in ((0, self.program_enable_spans_s), (1, self.threading_spans_s)):
             pairs = [(a, b) for a, b in zip(spans[::2], spans[1::2], strict=True) if b > a]
             if pairs:
@@ -215,6 +255,7 @@ class PlantBlock:
     feed_mm_rev: FloatArray
     override_pct: float
     inputs: InputValues = NO_INPUTS       # the machine's inputs at the end of the block
+    spindle_speed_rpm: float = math.nan   # the spindle's speed at the end of the block [rpm]
 
 
 class Dynamometer:

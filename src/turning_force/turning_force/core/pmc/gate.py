@@ -8,6 +8,7 @@ block at a time, putting their codes into words. """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -29,13 +30,17 @@ NORMAL, DISARMED, WATCHDOG, OVERLOAD_HOLD, INVALID_COMMAND = 0, 1, 2, 3, 5
 # --- gate -----------------------------------------------------------------------------------
 # Reasons beyond the safety gate's (FeedOverride's REASON_*).
 OPERATOR, AIR_CUT, TOOL_BREAKAGE, RISE_LIMIT, FEED_FLOOR, TEACH_IN = 4, 7, 8, 9, 10, 11
+FEED_NOT_FOLLOWING = 12
 # parameters: the safety gate, then the shop floor (core/shopfloor.py)
 G_WATCHDOG, G_SAFE, G_OVERLOAD, G_ARMED, G_CONT, G_MIN, G_MAX, G_PERIOD = range(8)
 G_ENGAGE, G_EXIT, G_DEBOUNCE, G_REACT_FRACTION, G_REACT_NEEDED, G_REACTION = range(8, 14)
 G_SETTLE, G_WINDOW, G_SPIKE, G_DROP, G_PE_REQUIRED, G_THREAD_SD, G_DIAL_MODE = range(14, 21)
 G_RISE, G_FLOOR, G_AIR, G_TEACH, G_TEACH_FRACTION = range(21, 26)
 G_RECENT_AT, G_PENDING_AT, G_PENDING_CAP, G_WINDOW_AT = range(26, 30)
-G_SIZE = 30
+# the feed-follow check: how long, how far [% points], the axis's lag, the programmed feed
+# [mm/rev] and the spindle_speed_rpm parameter
+G_FOLLOW_S, G_FOLLOW_TOL, G_FOLLOW_LAG, G_FEED_REV, G_RPM, G_FOLLOW_OVER = range(30, 36)
+G_SIZE = 36
 REACTION_NONE, REACTION_ALARM, REACTION_STOP, REACTION_HOLD = 0, 1, 2, 3
 DIAL_MIN, DIAL_PRODUCT, DIAL_IGNORE = 0, 1, 2
 # hold causes (the overload hold's detail): saturated, not finite, above the limit
@@ -69,7 +74,11 @@ GS_LA_UPSET = 59
 # breakage window's forces (GS_W_*): count and next place; their slots from G_*_AT on
 GS_R_N, GS_R_NEXT, GS_P_N, GS_P_NEXT, GS_W_N, GS_W_NEXT = range(60, 66)
 GS_REACT_LIM = 66     # the reaction's limit when it fired
-GS_FIXED = 67
+# the feed-follow check: the envelope of the applied override the axis may lag through, the
+# time it has been outside it, whether it tripped, and what it saw then (the axis's override,
+# the envelope's edge, the spindle speed)
+GS_F_HI, GS_F_LO, GS_F_OFF_S, GS_F_TRIPPED, GS_F_ACTUAL, GS_F_EDGE, GS_F_RPM = range(67, 74)
+GS_FIXED = 74
 BLOCK_FIELDS = 6     # a block in a ring: end time, force, applied, reachable, event, breakage
 # a cut record (CUT_*): what a finished cut leaves in the gate's output row
 CUT_INDEX, CUT_START, CUT_END, CUT_FEED_S, CUT_MAXF, CUT_MEANF, CUT_MINO = range(7)
@@ -83,7 +92,7 @@ DEC_FIELDS = 12
 # detail codes of a decision (the gate's one line, in pmc.py's words)
 (GD_NONE, GD_HOLD, GD_DISARMED, GD_WAITING, GD_NO_COMMAND, GD_STALE, GD_NONFINITE,
  GD_RANGE, GD_BREAKAGE, GD_REACTION_HOLD, GD_STAND, GD_TEACH, GD_FLOOR, GD_AIR, GD_DIAL,
- GD_RISE) = range(16)
+ GD_RISE, GD_FOLLOW) = range(17)
 
 
 
@@ -375,6 +384,7 @@ def gate_arm(gp: np.ndarray, gs: np.ndarray, t: float) -> None:
     cleared, unless the last force estimate is still over the limit."""
     gs[GS_ARMED], gs[GS_ARMED_T] = 1.0, t
     gs[GS_BREAK], gs[GS_REACTED], gs[GS_ABOVE] = BREAK_NONE, 0.0, 0.0
+    gs[GS_F_TRIPPED], gs[GS_F_OFF_S] = 0.0, 0.0
     code = _over_code(gp, gs[GS_LAST_F], gs[GS_LAST_STATUS])
     if code != HOLD_NONE:
         gs[GS_HOLD_AGAIN] = 1.0 if gs[GS_HOLD] != HOLD_NONE else 0.0
@@ -388,6 +398,44 @@ def gate_on_command(gs: np.ndarray, requested: float, t: float, reachable: float
     """OverrideGate.on_command: the controller's request at ``t``; ``reachable`` its flag
     (1, 0; -1: none) for the cut log."""
     gs[GS_REQ], gs[GS_CMD_T], gs[GS_REACH] = requested, t, reachable
+
+
+@compiled
+def gate_feed(gp: np.ndarray, gs: np.ndarray, feed_mm_min: float, rpm: float) -> None:
+    """OverrideGate.on_feed: the axis feed rate the DAQ measured over the block [mm/min]
+    (its mean), against the override the PMC applied during it. The axis lags the override
+    (the PMC's dead time, the servo): it may run anywhere inside an envelope of the applied
+    override that takes a rise or a fall at once on one side and follows it on the other with
+    the lag ``feed_follow_lag_s``, give or take ``feed_follow_tolerance_pct`` and
+    ``feed_follow_overshoot`` of the envelope's width (an underdamped servo overshoots a large
+    swing of the override by a share of it). Outside it for
+    ``feed_follow_time_s`` while the tool is in the cut and the gate regulates (armed, not
+    stood down), the feed does not follow the override (override cancel, a feed hold, a dry
+    run, a ladder that does not copy the override): the gate stops regulating and hands the
+    feed back until re-armed. The feed of the 100 % override is the programmed feed at the
+    spindle speed ``rpm`` (NaN: the spindle_speed_rpm parameter); a feed not measured (NaN)
+    is not judged."""
+    applied = gs[GS_APPLIED]
+    follow = pymin(gp[G_PERIOD] / gp[G_FOLLOW_LAG], 1.0)
+    hi, lo = gs[GS_F_HI], gs[GS_F_LO]
+    gs[GS_F_HI] = applied if applied >= hi else hi + (applied - hi) * follow
+    gs[GS_F_LO] = applied if applied <= lo else lo + (applied - lo) * follow
+    if gp[G_FOLLOW_S] <= 0.0 or gs[GS_F_TRIPPED] != 0.0 or not math.isfinite(feed_mm_min):
+        return
+    if not (rpm > 0.0 and math.isfinite(rpm)):
+        rpm = gp[G_RPM]
+    actual = 100.0 * feed_mm_min / (gp[G_FEED_REV] * rpm)
+    tolerance = gp[G_FOLLOW_TOL] + gp[G_FOLLOW_OVER] * (gs[GS_F_HI] - gs[GS_F_LO])
+    above, below = actual > gs[GS_F_HI] + tolerance, actual < gs[GS_F_LO] - tolerance
+    judged = (gs[GS_ARMED] != 0.0 and gs[GS_ENGAGED] != 0.0
+              and _stand_down(gp, gs) == STAND_NONE)
+    if not (judged and (above or below)):
+        gs[GS_F_OFF_S] = 0.0
+        return
+    gs[GS_F_OFF_S] += gp[G_PERIOD]
+    if gs[GS_F_OFF_S] >= gp[G_FOLLOW_S] - 1e-9:
+        gs[GS_F_TRIPPED], gs[GS_F_ACTUAL], gs[GS_F_RPM] = 1.0, actual, rpm
+        gs[GS_F_EDGE] = gs[GS_F_HI] if above else gs[GS_F_LO]
 
 
 @compiled
@@ -450,6 +498,9 @@ def _judge(gp: np.ndarray, gs: np.ndarray, t: float, dec: np.ndarray) -> None:
     if gs[GS_REACTED] != 0.0 and gp[G_REACTION] == REACTION_HOLD:
         _dialled(gp, gs, dec, 0.0, OVERLOAD_HOLD, GD_REACTION_HOLD)
         return
+    if gs[GS_F_TRIPPED] != 0.0:
+        _dialled(gp, gs, dec, 100.0, FEED_NOT_FOLLOWING, GD_FOLLOW)
+        return
     stand = _stand_down(gp, gs)
     if stand != STAND_NONE:
         dec[DEC_DA] = stand
@@ -489,7 +540,7 @@ def gate_decide(gp: np.ndarray, gs: np.ndarray, levels: np.ndarray, t: float,
     _judge(gp, gs, t, dec)
     dec[DEC_APPLIED] = quantise(levels, gp[G_CONT] != 0.0, dec[DEC_PCT])
     dec[DEC_ALARM] = 1.0 if (gs[GS_BREAK] != BREAK_NONE or gs[GS_REACTED] != 0.0
-                             or gs[GS_HOLD] != HOLD_NONE) else 0.0
+                             or gs[GS_HOLD] != HOLD_NONE or gs[GS_F_TRIPPED] != 0.0) else 0.0
     dec[DEC_STOP] = 1.0 if (gs[GS_REACTED] != 0.0
                             and gp[G_REACTION] == REACTION_STOP) else 0.0
     dec[DEC_ENGAGED] = gs[GS_ENGAGED]
@@ -532,6 +583,12 @@ def gate_block(gp: Arr, gs: Arr, force: float, status: float, cut: Arr, started:
     """:func:`gate_on_estimate` from Python (:class:`turning_force.core.pmc.gate.OverrideGate`);
     started[0] 1 where a hold has just started."""
     started[0] = 1.0 if gate_on_estimate(gp, gs, force, int(status), cut) else 0.0
+
+
+@entry('void(float64[::1], float64[::1], float64, float64)')
+def gate_feed_block(gp: Arr, gs: Arr, feed_mm_min: float, rpm: float) -> None:
+    """:func:`gate_feed` from Python (:class:`OverrideGate`)."""
+    gate_feed(gp, gs, feed_mm_min, rpm)
 
 
 @entry('void(float64[::1], float64[::1], float64[::1], float64, float64[::1], int64)')
@@ -632,12 +689,25 @@ class OverrideGate:
         return bool(self._state[GS_HOLD])
 
     def on_inputs(self, inputs: InputValues) -> None:
-        """The machine's inputs as last read (program enable, threading, operator dial)."""
-        self.inputs = inputs
+        """The machine's inputs as last read (program enable, threading, operator dial; the
+        spindle speed is :meth:`on_feed`'s, and left out of the decisions, as FeedOverride
+        leaves it out)."""
+        self.inputs = dataclasses.replace(inputs, spindle_speed_rpm=None)
         dial = inputs.operator_dial_pct
         self._state[[GS_PE, GS_TH, GS_DIAL]] = (_flag(inputs.program_enable),
                                                 _flag(inputs.threading),
                                                 math.nan if dial is None else float(dial))
+
+    def on_feed(self, feed_rate_mm_min: float, spindle_speed_rpm: float = math.nan) -> None:
+        """The axis feed rate the DAQ measured over the last block (its mean) [mm/min], and
+        the spindle speed [rpm] (NaN: spindle_speed_rpm): :func:`gate_feed`."""
+        gate_feed_block(self._params, self._state, float(feed_rate_mm_min),
+                        float(spindle_speed_rpm))
+
+    @property
+    def feed_not_following(self) -> bool:
+        """Whether the feed-follow check has stopped regulation (until re-armed)."""
+        return bool(self._state[GS_F_TRIPPED])
 
     def on_command(self, requested_pct: float, t_s: float, reachable: bool | None = None) -> None:
         """The controller's request; ``reachable``, its flag, goes to the cut log."""
@@ -762,6 +832,8 @@ class OverrideGate:
             text = self._reaction_text() + again
         elif code == GD_STAND:
             text = _STAND_DOWNS[int(a)]
+        elif code == GD_FOLLOW:
+            text = self._follow_text() + again
         else:
             text = texts[code]
         dial = float(dec[DEC_DIALLED])
@@ -777,6 +849,16 @@ class OverrideGate:
                     f'recent level {level:.0f} N')
         return (f'tool breakage: force {force:.0f} N is {1.0 - force / level:.0%} below its '
                 f'recent level {level:.0f} N while the program says the tool cuts')
+
+    def _follow_text(self) -> str:
+        s, state = self.settings, self._state
+        actual, edge = float(state[GS_F_ACTUAL]), float(state[GS_F_EDGE])
+        return (f'the feed does not follow the override: the axis ran at {actual:.0f} % of the '
+                f'programmed feed ({s.programmed_feed_mm_rev:g} mm/rev at '
+                f'{float(state[GS_F_RPM]):.0f} rpm) where the override applied allows '
+                f'{edge:.0f} +/- {s.feed_follow_tolerance_pct:g} %, for '
+                f'{s.feed_follow_time_s:g} s (override cancel M49, feed hold, dry run, or a '
+                'ladder that does not copy the override?): regulation stopped, feed handed back')
 
     def _reaction_text(self) -> str:
         s, state = self.settings, self._state
@@ -850,6 +932,9 @@ def _gate_params(s: BridgeSettings, table: OverrideTable) -> FloatArray:
     p[G_RISE], p[G_FLOOR] = s.rise_rate_pct_s, s.min_cut_override_pct
     p[G_AIR], p[G_TEACH] = s.air_cut_override_pct, s.teach_in
     p[G_TEACH_FRACTION] = s.teach_fraction
+    p[G_FOLLOW_S], p[G_FOLLOW_TOL] = s.feed_follow_time_s, s.feed_follow_tolerance_pct
+    p[G_FOLLOW_LAG], p[G_FOLLOW_OVER] = s.feed_follow_lag_s, s.feed_follow_overshoot
+    p[G_FEED_REV], p[G_RPM] = s.programmed_feed_mm_rev, s.spindle_speed_rpm
     p[G_RECENT_AT] = GS_FIXED
     p[G_PENDING_AT] = GS_FIXED + BLOCK_FIELDS * debounce
     p[G_PENDING_CAP] = debounce + settle
@@ -866,5 +951,6 @@ def _gate_state(s: BridgeSettings, p: FloatArray) -> FloatArray:
     state[GS_REACH] = -1.0
     state[GS_PE] = state[GS_TH] = state[GS_DIAL] = math.nan
     state[GS_APPLIED] = state[GS_RAMP] = 100.0
+    state[GS_F_HI] = state[GS_F_LO] = 100.0
     state[GS_LEARNING] = s.teach_in
     return state

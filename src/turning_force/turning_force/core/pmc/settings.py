@@ -36,12 +36,15 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
+import numpy as np
+import numpy.typing as npt
+
 from turning_force.core import shared
 from turning_force.core.pmc.overrides import get_table, override_table
 from turning_force.core.pmc.shopfloor import NO_INPUTS, InputValues, ShopFloorSettings
 from turning_force.core.settings import setting
 
-__all__ = ['BridgeSettings', 'Decision', 'Reason']
+__all__ = ['BridgeSettings', 'Decision', 'Reason', 'handed_back']
 
 
 class Reason(enum.IntEnum):
@@ -59,6 +62,7 @@ class Reason(enum.IntEnum):
     RISE_LIMIT = 9
     FEED_FLOOR = 10
     TEACH_IN = 11
+    FEED_NOT_FOLLOWING = 12
 
 
 @dataclass(frozen=True)
@@ -70,6 +74,25 @@ class BridgeSettings(ShopFloorSettings):
     override_table: str = override_table()
     control_period_s: float = shared.control_period_s()
     max_feed_force_n: float = shared.max_feed_force_n()
+    spindle_speed_rpm: float = shared.spindle_speed_rpm()
+    spindle_speed_stale_s: float = shared.spindle_speed_stale_s()
+    programmed_feed_mm_rev: float = shared.programmed_feed_mm_rev()
+    feed_follow_time_s: float = setting(
+        0.3, 'The axis feed the DAQ measures outside what the applied override allows this long '
+        'while cutting (override cancel M49, feed hold, dry run, a ladder that does not copy the '
+        'override): regulation stops and the feed is handed back until re-armed; 0: off', 's',
+        low=0.0, high=60.0, dynamic=True)
+    feed_follow_tolerance_pct: float = setting(
+        15.0, 'How far the axis feed may run from what the applied override allows, in % of the '
+        'programmed feed (servo overshoot, feed-rate noise)', '%', low=1.0, high=200.0,
+        dynamic=True)
+    feed_follow_overshoot: float = setting(
+        0.5, "How far beyond the override's recent swing the axis may run, as a share of it (a "
+        'second-order servo with damping 0.3 overshoots a step by 37 %)', low=0.0, high=5.0,
+        dynamic=True)
+    feed_follow_lag_s: float = setting(
+        0.5, 'How slowly the axis may follow a change of the override (PMC dead time and servo '
+        'lag together, with margin)', 's', low=0.01, high=10.0, dynamic=True)
     armed: bool = setting(False, "Write the controller's override (true) or the programmed "
                           'feed (false); arming also clears an overload hold', dynamic=True)
     watchdog_period_s: float = setting(0.05, 'A feed command older than this is stale', 's',
@@ -107,6 +130,18 @@ class BridgeSettings(ShopFloorSettings):
             self.fail('watchdog_period_s', f'shorter than control_period_s '
                                            f'({self.control_period_s}): every command would be '
                                            'stale')
+
+
+def handed_back(t_s: npt.ArrayLike, reasons: npt.ArrayLike) -> str:
+    """A line saying when the feed-follow check stopped regulation in a run (the block times
+    ``t_s`` and the reason of each block's decision), '' where it did not."""
+    t, why = np.asarray(t_s, dtype=np.float64), np.asarray(reasons, dtype=np.float64)
+    stopped = np.flatnonzero(why == Reason.FEED_NOT_FOLLOWING)
+    if not stopped.size:
+        return ''
+    return (f'regulation stopped at {t[stopped[0]]:.2f} s: the axis feed did not follow the '
+            'override (override cancel M49, feed hold, dry run, or a ladder that does not copy '
+            'the override?); the feed was handed back until re-armed')
 
 
 @dataclass(frozen=True)

@@ -40,12 +40,15 @@ class InputValues:
     """The machine's inputs, as plain values; ``None`` where the machine wires none.
 
     ``program_enable``: the part program's enable (an M-code relay); ``threading``: thread
-    cutting or tapping in progress; ``operator_dial_pct``: the operator's override dial [%].
+    cutting or tapping in progress; ``operator_dial_pct``: the operator's override dial [%];
+    ``spindle_speed_rpm``: the live spindle speed (``machine/spindle_speed``) [rpm], which the
+    controller and the feed-follow check use.
     """
 
     program_enable: bool | None = None
     threading: bool | None = None
     operator_dial_pct: float | None = None
+    spindle_speed_rpm: float | None = None
 
     def over(self, fallback: InputValues) -> InputValues:
         """These values where given, ``fallback``'s elsewhere (a module's wired inputs over a
@@ -54,7 +57,9 @@ class InputValues:
             fallback.program_enable if self.program_enable is None else self.program_enable,
             fallback.threading if self.threading is None else self.threading,
             (fallback.operator_dial_pct if self.operator_dial_pct is None
-             else self.operator_dial_pct))
+             else self.operator_dial_pct),
+            (fallback.spindle_speed_rpm if self.spindle_speed_rpm is None
+             else self.spindle_speed_rpm))
 
 
 NO_INPUTS = InputValues()   # a machine that wires none

@@ -24,7 +24,8 @@ are taken out, and the law sees the plant of Eq. 5 it is designed for, whose ``t
 the servo's (or a second-order servo's equivalent ``2 zeta / w_n``). With no dead time and
 a first-order servo the predictor changes nothing.
 
-Its gain uses the spindle speed through ``b`` (``spindle_speed_rpm``).
+Its gain uses the spindle speed through ``b``: the live one (``machine/spindle_speed``) where it
+is given, else ``spindle_speed_rpm`` (:func:`..law.spindle_speed`).
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ from turning_force.core.control.law import (
     C_MIN,
     C_PERIOD,
     C_REF,
+    C_RPM,
     CS_HELD,
     CS_LAW,
     OUT_ERR,
@@ -133,9 +135,9 @@ class Settings(ControllerBase):
 
 
 # Parameters (from C_LAW) and state (from CS_LAW); the predictor's follow where it is on.
-(P_LAMBDA, P_ETA, P_EPSILON, P_KSD_MIN, P_KSD_MAX, P_SURFACE, P_FAR, P_NEAR, P_ESCALE, P_RPM,
- P_TAU_C, P_DTAU, P_BALANCE, P_PREDICTOR) = range(C_LAW, C_LAW + 14)
-P_MODEL = C_LAW + 14
+(P_LAMBDA, P_ETA, P_EPSILON, P_KSD_MIN, P_KSD_MAX, P_SURFACE, P_FAR, P_NEAR, P_ESCALE,
+ P_TAU_C, P_DTAU, P_BALANCE, P_PREDICTOR) = range(C_LAW, C_LAW + 13)
+P_MODEL = C_LAW + 13
 S_INTEGRAL, S_MODEL = CS_LAW, CS_LAW + 1
 
 
@@ -146,7 +148,7 @@ def fill(settings: ControllerBase) -> tuple[Sequence[float], int]:
     tau_c = c.model_cutting_time_constant_s
     own = [c.smc_lambda_per_s, c.smc_eta, c.smc_epsilon_n, c.smc_ksd_min_n_mm,
            c.smc_ksd_max_n_mm, SURFACES.index(c.smc_surface), c.smc_damping_far,
-           c.smc_damping_near, c.smc_damping_error_n, c.spindle_speed_rpm, tau_c]
+           c.smc_damping_near, c.smc_damping_error_n, tau_c]
     if not c.smc_predictor:
         return [*own, c.model_servo_time_constant_s, BALANCE_FACTOR, 0.0], 1
     design_tau = predictor.design_time_constant_s(
@@ -184,7 +186,7 @@ def step(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndar
     tau_s, tau_c = cp[P_DTAU], cp[P_TAU_C]
     a1 = -1.0 / (tau_s * tau_c)
     a2 = -(tau_s + tau_c) / (tau_s * tau_c)
-    to_b = 1.0 / (tau_s * tau_c * cp[P_RPM])
+    to_b = 1.0 / (tau_s * tau_c * cp[C_RPM])
     b_min, b_max = cp[P_KSD_MIN] * to_b, cp[P_KSD_MAX] * to_b
     b_hat = math.sqrt(b_min * b_max)
     lam = cp[P_LAMBDA]
