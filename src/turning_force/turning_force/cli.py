@@ -201,13 +201,14 @@ def _run(args: argparse.Namespace) -> int:
                 raise TurningForceError(f'{bag.parent}: cannot create: {exc.strerror}') from exc
         _check_writable(bag, '--out' if args.out else '', new=True)
         outcome = _lockstep(args, experiment, bag)
-        session = read_session(bag)
-        try:
-            metrics = recorded_metrics(session)
-        except NoCutError:
-            metrics = {}   # an air cut: recorded, nothing to score
-        metrics['realtime_factor'] = outcome.realtime_factor
-        figure = write_report(session, metrics, Path(f'{bag}.png'))
+        with _signals(defer=False):   # the session is closed: a signal stops the figure
+            session = read_session(bag)
+            try:
+                metrics = recorded_metrics(session)
+            except NoCutError:
+                metrics = {}   # an air cut: recorded, nothing to score
+            metrics['realtime_factor'] = outcome.realtime_factor
+            figure = write_report(session, metrics, Path(f'{bag}.png'))
         out = {'experiment': experiment.run.name, 'session': str(bag), 'figure': str(figure),
                'executor': outcome.executor, 'metrics': metrics}
     if args.json:
