@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import random
 import shutil
+import signal
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -144,3 +145,15 @@ def assert_blocks_equal(blocks, expected):
         assert (a.t0_s, a.sample_period_s) == (b.t0_s, b.sample_period_s)
         for name in FIELDS:
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
+
+def stopped_by(signum: int) -> Callable[[int, int], None]:
+    """A run's progress callback that stops it at its first call, as the command's handler
+    of ``signum`` does (``turning-force run`` stops between two steps or batches)."""
+    from turning_force.cli import Interrupted
+
+    def stop(done: int, total: int) -> None:
+        raise Interrupted(f'interrupted by {signal.Signals(signum).name} after block {done} '
+                          f'of {total}', signum)
+
+    return stop

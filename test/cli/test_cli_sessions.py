@@ -82,7 +82,8 @@ def test_partial_reports_what_is_there_with_one_warning_line(capfd, tmp_path):
     bag = random_middle(copy_reference(tmp_path / 'middle'))
     assert main(['report', str(bag), '--out', str(tmp_path / 'r.png'), '--partial']) == 0
     assert one_line(capfd).startswith(f'turning-force: warning: partial session: {bag}: '
-                                      f'servo/currents {FIRST_CHUNK_BLOCKS} of 1200 blocks')
+                                      f'damaged: servo/currents {FIRST_CHUNK_BLOCKS} of 1200 '
+                                      'blocks')
 
 
 def test_repair_rebuilds_a_cut_session(capfd, tmp_path):
@@ -162,10 +163,12 @@ def test_a_signal_stops_a_run_with_one_line_and_a_closed_session(tmp_path, signu
     assert len(lines) == 1 and 'Traceback' not in err, err
     assert lines[0].startswith(f'turning-force: interrupted by {signal.Signals(signum).name} '
                                'after block ')
-    assert lines[0].endswith(f'the session {bag} is closed with what ran')
+    assert lines[0].endswith(f'the session {bag} is closed with what ran (ended early)')
     blocks = int(lines[0].split('after block ')[1].split()[0])
-    session = read_session(bag)   # closed: counts written, nothing missing
-    assert session.warning == '' and len(session.blocks) == blocks
+    session = read_session(bag)   # closed: counts written, nothing missing, ended early
+    assert len(session.blocks) == blocks
+    assert session.warning == (f'{bag}: ended early: stopped by {signal.Signals(signum).name} '
+                               f'after {blocks} of 6000 planned blocks (closed cleanly)')
 
 
 def test_a_killed_run_leaves_a_session_that_says_so_and_repairs(capfd, tmp_path):

@@ -4,21 +4,25 @@ on sim time, messages that come before the clock has begun logged when it has.""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
 
+import yaml
 from builtin_interfaces.msg import Time
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.serialization import serialize_message
 from rosbags.highlevel import AnyReader
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, String
 from turning_force_msgs.msg import ForceEstimate
 
+from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.session_recorder import SessionRecorderNode
-from turning_force.session.bag import SessionWriter, typestore
+from turning_force.session.bag import CUSTOM_END, CUSTOM_PARAMETERS, SessionWriter, typestore
+from turning_force.session.reader import settings_data
 
 TOPICS = {'/a': 'std_msgs/msg/Float64', '/b': 'std_msgs/msg/Float64'}
 
@@ -136,6 +140,38 @@ def test_messages_are_kept_when_sim_time_never_begins(context, executor, spin_un
 
 
 def decoded(path: Path) -> list[tuple[str, int, object]]:
+    """The graph's messages recorded (the session's settings left out)."""
     with AnyReader([path], default_typestore=typestore()) as reader:
         return [(c.topic, t, reader.deserialize(raw, c.msgtype))
-                for c, t, raw in reader.messages()]
+                for c, t, raw in reader.messages() if c.topic != '/session/settings']
+
+
+def test_the_recorder_latches_the_sessions_settings_and_records_them(context, executor,
+                                                                      spin_until, tmp_path):
+    # session/settings (issue 18): the settings as YAML, published transient-local, so that a
+    # live view that joins late gets them, and recorded in the bag before the first message
+    # and again as it closes (with how the recording ended).
+    path = tmp_path / 'session'
+    recorder = SessionRecorderNode(context=context, custom_data={CUSTOM_PARAMETERS: '{"a": 1}'},
+                                   parameter_overrides=[Parameter('output_dir', value=str(path)),
+                                                        Parameter('capture_parameters',
+                                                                  value=False)])
+    executor.add_node(recorder)
+    late = Node('late', context=context)
+    executor.add_node(late)
+    got: list[str] = []
+    late.create_subscription(String, 'session/settings', lambda m: got.append(m.data),
+                             REFERENCE_QOS)
+    assert spin_until(lambda: bool(got))
+    assert yaml.safe_load(got[-1])[CUSTOM_PARAMETERS] == '{"a": 1}'
+    estimates = late.create_publisher(ForceEstimate, 'force/estimate', 10)
+    assert spin_until(lambda: estimates.get_subscription_count() == 1)
+    estimates.publish(ForceEstimate(force_n=1.0))
+    assert spin_until(lambda: recorder.writer.counts.get('/force/estimate', 0) == 1)
+    recorder.close()
+    recorded = [(topic, data) for topic, _, data in read(path) if topic == '/session/settings']
+    assert len(recorded) == 2
+    first, last = (settings_data([data])[0] for _, data in recorded)
+    assert first[CUSTOM_PARAMETERS] == last[CUSTOM_PARAMETERS] == '{"a": 1}'
+    assert CUSTOM_END not in first
+    assert json.loads(last[CUSTOM_END]) == {'stopped_by': None, 'blocks': 0, 'planned': None}

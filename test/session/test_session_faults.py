@@ -37,7 +37,7 @@ def test_random_bytes_in_the_middle_are_an_error_naming_what_is_missing(tmp_path
     with pytest.raises(BagError) as error:
         read_session(bag)
     message = str(error.value)
-    assert message.startswith(f'{bag}: servo/currents {FIRST_CHUNK_BLOCKS} of '
+    assert message.startswith(f'{bag}: damaged: servo/currents {FIRST_CHUNK_BLOCKS} of '
                               f'{REFERENCE_BLOCKS} blocks read')
     assert f'chunk at byte {chunks(REFERENCE)[1][0]}' in message
     assert '\n' not in message
@@ -47,9 +47,9 @@ def test_partial_reads_what_is_there_and_says_how_much_is_missing(tmp_path, refe
     bag = random_middle(copy_reference(tmp_path / 'middle'))
     session = read_session(bag, partial=True)
     assert_blocks_equal(session.blocks, reference.blocks[:FIRST_CHUNK_BLOCKS])
-    assert session.warning.startswith(f'partial session: {bag}: servo/currents '
+    assert session.warning.startswith(f'partial session: {bag}: damaged: servo/currents '
                                       f'{FIRST_CHUNK_BLOCKS} of {REFERENCE_BLOCKS} blocks read')
-    assert '3677 of 7261 recorded messages missing' in session.warning
+    assert '3677 of 7263 recorded messages missing' in session.warning
 
 
 def test_a_changed_byte_in_a_written_chunk_is_found_by_its_crc(tmp_path):
@@ -96,7 +96,8 @@ def test_a_corrupt_zstd_chunk_is_an_error_naming_the_chunk(tmp_path):
     # Bytes early in the first chunk's zstd frame: the frame no longer decodes (ZstdError).
     start, data, _ = chunks(REFERENCE)[0]
     bag = flip(copy_reference(tmp_path / 'zstd'), [data + 50, data + 51])
-    with pytest.raises(BagError, match=rf'^{bag}: servo/currents 607 of 1200 blocks read.*'
+    with pytest.raises(BagError, match=rf'^{bag}: damaged: servo/currents 607 of 1200 blocks '
+                                       r'read.*'
                                        rf'chunk at byte {start} \(\d+ bytes\): '):
         read_session(bag)
 

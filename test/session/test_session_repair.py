@@ -26,6 +26,7 @@ from bagfaults import (
     assert_blocks_equal,
     copy_reference,
     mcap_of,
+    random_middle,
     truncate,
 )
 from turning_force.session.bag import CUSTOM_RECORDING, CUSTOM_REPAIR, BagError, typestore
@@ -110,9 +111,21 @@ def test_a_killed_recorder_leaves_a_session_that_repair_completes(context, execu
     assert result.recorded is None   # nothing counted it: the recorder never closed
     session = read_session(bag)
     assert 'from a recording that was never closed' in session.warning
+    assert session.wholeness is not None   # what it was, after the repair
+    assert (session.wholeness.state, session.wholeness.repaired) == ('killed', True)
+    assert f'{bag}: killed: never closed' in session.warning
     # Flushed at least once a second: what is lost is the last second or so (100 blocks), plus
     # the ones still in flight when the kill came. What is there is in order, without a gap.
     first = int(session.blocks[0].phase_u_a[0])
     assert len(session.blocks) >= sent[0] - 150, (len(session.blocks), sent[0])
     assert [int(b.phase_u_a[0]) for b in session.blocks] == list(
         range(first, first + len(session.blocks)))
+
+
+def test_a_repaired_session_still_says_it_was_damaged(tmp_path):
+    bag = random_middle(copy_reference(tmp_path / 'middle'))
+    assert repair(bag).repaired
+    state = read_session(bag).wholeness
+    assert state is not None
+    assert (state.state, state.repaired, state.blocks, state.planned) == (
+        'damaged', True, FIRST_CHUNK_BLOCKS, 1200)

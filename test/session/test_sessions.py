@@ -4,7 +4,6 @@ equal to the core loop, replayed, drawn (what a killed recorder leaves: test_ses
 from __future__ import annotations
 
 import json
-import shutil
 import struct
 from pathlib import Path
 
@@ -15,6 +14,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
+from bagfaults import rewrite
 from turning_force.commands.run import run_lockstep
 from turning_force.core.experiment import load_experiment
 from turning_force.core.kernel.simulate import simulate
@@ -33,7 +33,8 @@ from turning_force.session.report import write_report
 # force/measured: a dynamometer's, recorded where one is fitted (none here: no messages).
 TOPICS = {'/servo/currents', '/servo/joint_state', '/sim/cutting_state', '/force/estimate',
           '/control/feed_command', '/pmc/feed_override', '/force/reference', '/diagnostics',
-          '/force/measured', '/machine/inputs', '/machine/spindle_speed', '/pmc/cuts'}
+          '/force/measured', '/machine/inputs', '/machine/spindle_speed', '/pmc/cuts',
+          '/session/settings'}
 
 
 @pytest.fixture(scope='module')
@@ -121,8 +122,8 @@ def test_report_is_a_png(fig8_session, tmp_path):
 def test_a_session_from_the_machine_replays_with_its_experiment_file(fig8_session, tmp_path):
     # A recorder started with ros2 run embeds the experiment file, not resolved parameters.
     _, bag, _ = fig8_session
-    copy = tmp_path / 'fig8'
-    shutil.copytree(bag, copy)
+    copy = tmp_path / 'fig8'   # without the settings topic, which holds the parameters too
+    rewrite(bag, copy, keep=lambda topic: topic != '/session/settings')
     metadata = yaml.safe_load((copy / 'metadata.yaml').read_text())
     del metadata['rosbag2_bagfile_information']['custom_data'][CUSTOM_PARAMETERS]
     (copy / 'metadata.yaml').write_text(yaml.safe_dump(metadata))

@@ -55,6 +55,7 @@ class Interrupted(TurningForceError):
     def __init__(self, message: str, signum: int) -> None:
         super().__init__(message)
         self.exit_status = 128 + signum
+        self.signal_name = signal.Signals(signum).name   # what the session says stopped it
 
 
 @contextlib.contextmanager
@@ -86,28 +87,35 @@ def _warn(session: Any) -> None:
         print(f'turning-force: warning: {session.warning}', file=sys.stderr)
 
 
-def _lockstep(args: argparse.Namespace, experiment: Any, bag: Path) -> Any:
-    """The lock-step run, stopped between two steps by SIGINT or SIGTERM."""
-    from turning_force.commands.run import print_progress, run_lockstep
-
-    step = [0, 0]
+def _recorded(bag: Path, record: Callable[[Callable[[int, int], None]], Any],
+              show: Callable[[int, int], None] | None) -> Any:
+    """``record(progress)``, a recorded run, stopped by SIGINT or SIGTERM where it calls
+    ``progress`` (between two steps or two batches of blocks, so that the session closes
+    consistent, saying it ended early); ``show`` draws the progress."""
     with _signals(defer=True) as received:
         def progress(done: int, total: int) -> None:
-            step[:] = [done, total]
             signum = received()
             if signum is not None:
                 raise Interrupted(
                     f'interrupted by {signal.Signals(signum).name} after block {done} of '
-                    f'{total}: the session {bag} is closed with what ran', signum)
-            if not args.json:
-                print_progress(done, total)
+                    f'{total}: the session {bag} is closed with what ran (ended early)', signum)
+            if show is not None:
+                show(done, total)
 
-        outcome = run_lockstep(experiment, bag, progress)
+        outcome = record(progress)
         signum = received()
         if signum is not None:   # during the last steps
             raise Interrupted(f'interrupted by {signal.Signals(signum).name} after the run: '
                               f'the session {bag} is complete', signum)
     return outcome
+
+
+def _lockstep(args: argparse.Namespace, experiment: Any, bag: Path) -> Any:
+    """The lock-step run, stopped between two steps by SIGINT or SIGTERM."""
+    from turning_force.commands.run import print_progress, run_lockstep
+
+    return _recorded(bag, lambda progress: run_lockstep(experiment, bag, progress),
+                     None if args.json else print_progress)
 
 
 def _load(path: str, params: Sequence[str], sets: Sequence[str]) -> Experiment:
@@ -138,8 +146,30 @@ def _check_writable(out: Path, flag: str, new: bool) -> None:
         raise TurningForceError(f'{where}: cannot write in {parent}: {exc.strerror}') from exc
 
 
+def _check_bridge_files(experiment: Experiment, core: bool) -> None:
+    """The files the bridge reads, refused before anything runs: the teach-in file must be
+    text; and ``run --core`` refuses the machine file the graph refuses, as it refuses it."""
+    bridge = experiment.bridge
+    if core:
+        from turning_force.io.pmc_server import simulate_pmc
+
+        simulate_pmc(bridge.machine_file, bridge.backend, bridge.override_table)
+    if bridge.teach_file:
+        try:
+            Path(bridge.teach_file).read_bytes().decode('utf-8')
+        except FileNotFoundError:
+            pass   # a learning cut creates it
+        except OSError as exc:
+            raise TurningForceError(f'{bridge.teach_file}: cannot read teach-in file: '
+                                    f'{exc.strerror}') from exc
+        except UnicodeDecodeError as exc:
+            raise TurningForceError(f'{bridge.teach_file}: pmc_bridge.teach_file: not a text '
+                                    f'(UTF-8) teach-in file (byte {exc.start} of it)') from exc
+
+
 def _run(args: argparse.Namespace) -> int:
     experiment = _load(args.experiment, args.params, args.set)
+    _check_bridge_files(experiment, args.core)
     if args.core and args.out:
         from turning_force.commands.core_session import record_core
 
@@ -150,8 +180,7 @@ def _run(args: argparse.Namespace) -> int:
             from turning_force.commands.run import print_progress
 
             progress = print_progress
-        with _signals(defer=False):
-            recorded = record_core(experiment, bag, progress)
+        recorded = _recorded(bag, lambda step: record_core(experiment, bag, step), progress)
         result = recorded.run.result
         metrics = result.metrics
         stopped = handed_back(result.trace['t_s'], result.trace['override_reason'])
@@ -178,14 +207,15 @@ def _run(args: argparse.Namespace) -> int:
                 raise TurningForceError(f'{bag.parent}: cannot create: {exc.strerror}') from exc
         _check_writable(bag, '--out' if args.out else '', new=True)
         outcome = _lockstep(args, experiment, bag)
-        session = read_session(bag)
-        stopped = handed_back(session.t_s, session.signals['override_reason'])
-        try:
-            metrics = recorded_metrics(session)
-        except NoCutError:
-            metrics = {}   # an air cut: recorded, nothing to score
-        metrics['realtime_factor'] = outcome.realtime_factor
-        figure = write_report(session, metrics, Path(f'{bag}.png'))
+        with _signals(defer=False):   # the session is closed: a signal stops the figure
+            session = read_session(bag)
+            stopped = handed_back(session.t_s, session.signals['override_reason'])
+            try:
+                metrics = recorded_metrics(session)
+            except NoCutError:
+                metrics = {}   # an air cut: recorded, nothing to score
+            metrics['realtime_factor'] = outcome.realtime_factor
+            figure = write_report(session, metrics, Path(f'{bag}.png'))
         out = {'experiment': experiment.run.name, 'session': str(bag), 'figure': str(figure),
                'executor': outcome.executor, 'metrics': metrics}
     if stopped:
@@ -226,7 +256,21 @@ def _prediction(params: Sequence[str] | str | None) -> dict[str, Any] | None:
     return None
 
 
+def _parallel(args: argparse.Namespace) -> None:
+    """--jobs and --dask checked before anything runs (args.dask becomes a DaskScheduler)."""
+    if args.jobs is not None and args.jobs < 1:
+        raise TurningForceError(f'--jobs {args.jobs}: need at least 1')
+    if args.dask:
+        from turning_force.commands.sweep import DaskScheduler
+
+        args.dask = DaskScheduler(args.dask, args.tls_ca, args.tls_cert, args.tls_key,
+                                  args.insecure)
+    elif args.tls_ca or args.tls_cert or args.tls_key or args.insecure:
+        raise TurningForceError('--tls-ca, --tls-cert, --tls-key and --insecure go with --dask')
+
+
 def _replay(args: argparse.Namespace) -> int:
+    _parallel(args)
     if len(args.bags) > 1 or args.dask:
         return _replay_many(args)
     from turning_force.session.reader import read_session
@@ -246,19 +290,28 @@ def _replay(args: argparse.Namespace) -> int:
                  args.params)
     result = replay(session, args.set, None if args.json else print_progress)
     comparison = result.comparison(len(session.blocks))
-    _print_replay(args, str(session.path), result.recorded, result.rerun, comparison)
+    _print_replay(args, str(session.path), result.recorded, result.rerun, comparison,
+                  _state(session))
     return 0
 
 
+def _state(session: Any) -> dict[str, Any]:
+    """The session's :class:`turning_force.session.reader.Wholeness` as JSON."""
+    state: dict[str, Any] = session.wholeness.to_json()
+    return state
+
+
 def _print_replay(args: argparse.Namespace, path: str, recorded: dict[str, float],
-                  rerun: dict[str, float], comparison: dict[str, Any]) -> None:
+                  rerun: dict[str, float], comparison: dict[str, Any],
+                  state: dict[str, Any]) -> None:
     """One session's replay: recorded and re-run metrics side by side, and how far apart."""
     blocks = comparison['blocks']
     if args.json:
         print(json.dumps({'session': path, 'sets': list(args.set), 'metrics': rerun,
-                          'recorded_metrics': recorded, 'comparison': comparison}))
+                          'recorded_metrics': recorded, 'comparison': comparison,
+                          'session_state': state}))
         return
-    print(f'{path}: {blocks} blocks replayed open loop'
+    print(f'{path} ({state["text"]}): {blocks} blocks replayed open loop'
           + (f' with {", ".join(args.set)}' if args.set else ' unchanged'))
     if recorded or rerun:
         print(f'  {"metric (estimated force)":28s} {"recorded":>10s} {"re-run":>10s}')
@@ -293,7 +346,7 @@ def _replay_many(args: argparse.Namespace) -> int:
     failed = [r for r in results if r.error]
     if len(results) == 1 and not failed:
         r = results[0]
-        _print_replay(args, r.session, r.recorded_metrics, r.metrics, r.comparison)
+        _print_replay(args, r.session, r.recorded_metrics, r.metrics, r.comparison, r.state)
     elif args.json:
         print(json.dumps({'sets': list(args.set),
                           'sessions': [r.to_json(args.set) for r in results],
@@ -348,8 +401,7 @@ def _sweep(args: argparse.Namespace) -> int:
     axes = parse_grid(args.grid)   # the grid's syntax before any file is read
     if args.top < 1:
         raise TurningForceError(f'--top {args.top}: need at least 1')
-    if args.jobs is not None and args.jobs < 1:
-        raise TurningForceError(f'--jobs {args.jobs}: need at least 1')
+    _parallel(args)
     for flag, path, suffixes in (('--out', args.out, ('.csv', '.parquet')),
                                  ('--figure', args.figure, ('.png', '.svg', '.pdf'))):
         if path is None:
@@ -449,7 +501,11 @@ def _report(args: argparse.Namespace) -> int:
     _warn(session)
     metrics = recorded_metrics(session)
     (write_report if out.suffix == '.png' else write_html_report)(session, metrics, out)
-    _print_metrics(f'{session.path}: figure {out}', metrics)
+    if args.json:
+        print(json.dumps({'session': str(session.path), 'figure': str(out), 'metrics': metrics,
+                          'session_state': _state(session)}))
+        return 0
+    _print_metrics(f'{session.path} ({_state(session)["text"]}): figure {out}', metrics)
     return 0
 
 
@@ -724,10 +780,11 @@ def _repair(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({'session': str(result.path), 'repaired': result.repaired,
                           'recovered': result.recovered, 'recorded': result.recorded,
-                          'damage': result.damage, 'summary': result.summary}))
+                          'damage': result.damage, 'summary': result.summary,
+                          'kept': result.kept}))
     elif result.repaired:
-        print(f'{result.path}: repaired: {result.summary}. The old file is kept beside it '
-              '(.damaged)')
+        print(f'{result.path}: repaired: {result.summary}. The files it replaced are kept '
+              f'beside it ({", ".join(result.kept)})')
     else:
         print(f'{result.path}: {result.summary}')
     return 0
@@ -767,7 +824,16 @@ def build_parser() -> argparse.ArgumentParser:
                              help=f'local processes for the {what} (default: one per core)')
         command.add_argument('--dask', metavar='SCHEDULER_ADDRESS',
                              help=f'run the {what} on a Dask cluster instead (pip install '
-                             "'turning_force[dask]', on the workers too)")
+                             "'turning_force[dask]', on the workers too); on another host: "
+                             'tls://... with --tls-ca, --tls-cert and --tls-key')
+        command.add_argument('--tls-ca', metavar='FILE', help='with --dask tls://: the CA '
+                             "certificate that signed the scheduler's")
+        command.add_argument('--tls-cert', metavar='FILE', help='with --dask tls://: this '
+                             "client's certificate")
+        command.add_argument('--tls-key', metavar='FILE', help='with --dask tls://: its key')
+        command.add_argument('--insecure', action='store_true', help='allow a --dask '
+                             'scheduler on another host over plain tcp:// (a trusted network '
+                             'only: the sessions and the work travel unencrypted)')
 
     run = commands.add_parser('run', help='run an experiment through the graph, recorded')
     run.add_argument('experiment', help='ROS 2 parameters file (config/experiments/*.yaml)')
@@ -820,6 +886,7 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument('bag', help='session folder (rosbag2, MCAP)')
     report.add_argument('--out', help='PNG or HTML to write (default: a PNG beside the '
                         'session)')
+    report.add_argument('--json', action='store_true', help='print one JSON object')
     add_partial(report)
     report.set_defaults(handler=_report)
 

@@ -31,10 +31,12 @@ from turning_force.session import codec
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
     CUSTOM_PARAMETERS,
+    CUSTOM_PLANNED,
     CUSTOM_VERSIONS,
     SessionWriter,
     dumps,
     software_versions,
+    stopped_by,
     typestore,
 )
 
@@ -83,10 +85,51 @@ class CoreSession:
 
 def record_core(experiment: Experiment, out: Path,
                 progress: Callable[[int, int], None] | None = None) -> CoreSession:
-    """Run ``experiment`` on the core loop and record it to ``out`` (see the module's text)."""
-    run = run_core(experiment)
-    write_core_session(experiment, run, out, progress)
+    """Run ``experiment`` on the core loop and record it to ``out`` (see the module's text).
+
+    The session is opened first, with its settings and the planned count of blocks, so that
+    a run stopped at any point leaves a session that says so: whatever ``progress`` raises
+    (a signal, between two batches) or the run raises closes it as ended early, with the
+    blocks written; a kill leaves it unclosed (read back as killed)."""
+    run = _record(experiment, out, lambda: run_core(experiment), progress)
     return CoreSession(out, run, len(run.currents))
+
+
+def _record(experiment: Experiment, out: Path, make_run: Callable[[], CoreRun],
+            progress: Callable[[int, int], None] | None) -> CoreRun:
+    """The session ``out`` opened, then ``make_run()`` written to it (:func:`record_core`)."""
+    writer = _open_session(experiment, out)
+    try:
+        run = make_run()
+        _write(writer, typestore(), experiment, run, progress)
+    except BaseException as exc:
+        writer.end(stopped_by(exc))
+        writer.close()
+        raise
+    writer.close()
+    return run
+
+
+def _open_session(experiment: Experiment, out: Path) -> SessionWriter:
+    """The session folder ``out`` opened: custom data (the settings topic too), the topics."""
+    from turning_force.io.pmc_server import simulated_parameters
+
+    custom = {CUSTOM_VERSIONS: dumps(software_versions())}
+    if experiment.source and Path(experiment.source).is_file():
+        custom[CUSTOM_EXPERIMENT] = Path(experiment.source).read_text()
+    custom[CUSTOM_PARAMETERS] = dumps(simulated_parameters(experiment)[0])
+    custom[RECORDER] = 'run --core: ' + ', '.join(NOT_RECORDED) + ' not recorded'
+    custom[CUSTOM_PLANNED] = str(round(experiment.run.duration_s
+                                       / experiment.run.control_period_s))
+    writer = SessionWriter(out, custom_data=custom)
+    try:
+        for topic, msgtype in TOPICS.items():
+            writer.add_topic(topic, msgtype)
+        writer.record_settings()
+    except BaseException:
+        writer.close()
+        raise
+    return writer
 
 
 def _stamp(ns: IntArray) -> dict[str, IntArray]:
@@ -96,24 +139,7 @@ def _stamp(ns: IntArray) -> dict[str, IntArray]:
 def write_core_session(experiment: Experiment, run: CoreRun, out: Path,
                        progress: Callable[[int, int], None] | None = None) -> Path:
     """Write ``run`` (of ``experiment``) as a session folder ``out``."""
-    from turning_force.io.pmc_server import simulated_parameters
-
-    store = typestore()
-    writer = SessionWriter(out)
-    try:
-        writer.set_custom_data(CUSTOM_VERSIONS, dumps(software_versions()))
-        if experiment.source and Path(experiment.source).is_file():
-            writer.set_custom_data(CUSTOM_EXPERIMENT, Path(experiment.source).read_text())
-        writer.set_custom_data(CUSTOM_PARAMETERS, dumps(simulated_parameters(experiment)[0]))
-        writer.set_custom_data(RECORDER, 'run --core: ' + ', '.join(NOT_RECORDED)
-                               + ' not recorded')
-        for topic, msgtype in TOPICS.items():
-            writer.add_topic(topic, msgtype)
-        _write(writer, store, experiment, run, progress)
-    except BaseException:
-        writer.close()
-        raise
-    writer.close()
+    _record(experiment, out, lambda: run, progress)
     return out
 
 

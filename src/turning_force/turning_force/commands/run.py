@@ -47,7 +47,7 @@ from turning_force.nodes.lathe_sim import LatheSimNode
 from turning_force.nodes.pmc_bridge import PmcBridgeNode
 from turning_force.nodes.session_recorder import GRAPH_TOPICS, SessionRecorderNode
 from turning_force.nodes.spin import check_domain_id, freeze_heap, make_executor
-from turning_force.session.bag import CUSTOM_PARAMETERS, dumps
+from turning_force.session.bag import CUSTOM_PARAMETERS, CUSTOM_PLANNED, dumps, stopped_by
 
 __all__ = ['RunError', 'RunOutcome', 'foreign_endpoints', 'isolated_context', 'run_lockstep',
            'share_clock']
@@ -166,11 +166,12 @@ def run_lockstep(experiment: Experiment, out_dir: Path,
         pmc.start()
         sim = LatheSimNode(lockstep=True, context=context, parameter_overrides=_overrides(
             resolved['lathe_sim'], publish_clock=True, **pmc.parameters))
+        steps = round(experiment.run.duration_s / experiment.run.control_period_s)
         recorder = SessionRecorderNode(
             background=fast, context=context, parameter_overrides=_overrides(
                 {}, output_dir=str(out_dir), experiment_file=experiment.source,
-                capture_parameters=False))
-        recorder.add_custom_data(CUSTOM_PARAMETERS, dumps(resolved))
+                capture_parameters=False),
+            custom_data={CUSTOM_PARAMETERS: dumps(resolved), CUSTOM_PLANNED: str(steps)})
         bridge = PmcBridgeNode(autostart=False, context=context, parameter_overrides=_overrides(
             resolved['pmc_bridge']))
         nodes = [
@@ -190,31 +191,33 @@ def run_lockstep(experiment: Experiment, out_dir: Path,
         own = {node.get_fully_qualified_name() for node in nodes}
         topics = [*GRAPH_TOPICS, '/clock']
         _refuse_foreign(sim, own, topics)
-        steps = round(experiment.run.duration_s / experiment.run.control_period_s)
         if fast:
             freeze_heap()   # start-up's objects out of the collector's scans while stepping
         start = time.perf_counter()
-        for k in range(steps):
-            if k and k % FOREIGN_CHECK_STEPS == 0:
-                _refuse_foreign(sim, own, topics)
-            block = sim.step()
-            answered = sim.answer(block)
-            executor.spin_until_future_complete(answered, timeout_sec=ANSWER_TIMEOUT_S)
-            if recorder.failure is not None:   # the disk is full: stop, say it once
-                raise recorder.failure
-            if not answered.done():
-                raise RunError(f'step {k}: no override answered the block of '
-                               f'{block.currents.t0_s:.3f} s within {ANSWER_TIMEOUT_S} s')
-            if progress is not None:
-                progress(k + 1, steps)
-        # Let the recorder take the last messages before the session is closed.
-        expected = {'pmc/feed_override': bridge.diagnostics.published_count('pmc/feed_override'),
-                    'control/feed_command': steps, 'force/estimate': steps,
-                    'servo/currents': steps, 'sim/cutting_state': steps}
-        deadline = time.monotonic() + ANSWER_TIMEOUT_S
-        while (any(recorder.writer.counts[recorder.resolve_topic_name(t)] < n
-                   for t, n in expected.items()) and time.monotonic() < deadline):
-            executor.spin_once(timeout_sec=0.1)
+        done = 0
+        try:
+            for k in range(steps):
+                if k and k % FOREIGN_CHECK_STEPS == 0:
+                    _refuse_foreign(sim, own, topics)
+                block = sim.step()
+                answered = sim.answer(block)
+                executor.spin_until_future_complete(answered, timeout_sec=ANSWER_TIMEOUT_S)
+                if recorder.failure is not None:   # the disk is full: stop, say it once
+                    raise recorder.failure
+                if not answered.done():
+                    raise RunError(f'step {k}: no override answered the block of '
+                                   f'{block.currents.t0_s:.3f} s within {ANSWER_TIMEOUT_S} s')
+                done = k + 1
+                if progress is not None:
+                    progress(k + 1, steps)
+        except BaseException as exc:   # a signal, an error: the session says it ended early
+            try:
+                if isinstance(exc, KeyboardInterrupt) or hasattr(exc, 'signal_name'):
+                    _drain(executor, recorder, bridge, done)   # the blocks that ran, whole
+            finally:
+                recorder.end(stopped_by(exc))
+            raise
+        _drain(executor, recorder, bridge, steps)
         wall = time.perf_counter() - start
         _refuse_foreign(sim, own, topics)
         recorder.close()
@@ -228,6 +231,19 @@ def run_lockstep(experiment: Experiment, out_dir: Path,
         rclpy.try_shutdown(context=context)
         pmc.stop()
         gc.unfreeze()   # collectable again once the run is over (many runs in one process)
+
+
+def _drain(executor: Any, recorder: SessionRecorderNode, bridge: PmcBridgeNode,
+           blocks: int) -> None:
+    """Let the recorder take the messages of the first ``blocks`` blocks (within
+    ``ANSWER_TIMEOUT_S``) before the session is closed."""
+    expected = {'pmc/feed_override': bridge.diagnostics.published_count('pmc/feed_override'),
+                'control/feed_command': blocks, 'force/estimate': blocks,
+                'servo/currents': blocks, 'sim/cutting_state': blocks}
+    deadline = time.monotonic() + ANSWER_TIMEOUT_S
+    while (any(recorder.writer.counts[recorder.resolve_topic_name(t)] < n
+               for t, n in expected.items()) and time.monotonic() < deadline):
+        executor.spin_once(timeout_sec=0.1)
 
 
 def print_progress(done: int, total: int) -> None:

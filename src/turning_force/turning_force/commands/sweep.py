@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
-from turning_force.core.errors import ConfigError, TurningForceError
+from turning_force.core.errors import ConfigError, TurningForceError, shortened
 from turning_force.core.experiment import (
     OTHER_SECTIONS,
     SETTINGS_OF,
@@ -47,7 +47,8 @@ from turning_force.core.yamlfile import load_yaml, yaml_error_text, yaml_text
 if TYPE_CHECKING:
     from turning_force.session.reader import Session
 
-__all__ = ['BETTER', 'DEFAULT_METRIC', 'REPLAY_COLUMNS', 'Axis', 'SessionReplay', 'SweepResult',
+__all__ = ['BETTER', 'DEFAULT_METRIC', 'REPLAY_COLUMNS', 'Axis', 'DaskScheduler', 'SessionReplay',
+           'SweepResult',
            'parse_axis', 'parse_grid', 'replay_sessions', 'replay_totals', 'sweep']
 
 # Which way each metric is better (core/metrics.py): errors, times, ripple and override changes
@@ -402,20 +403,77 @@ def _map_local(func: Callable[..., Any], calls: Sequence[tuple[Any, ...]], jobs:
                 future.cancel()
 
 
+LOCAL_HOSTS = ('127.0.0.1', 'localhost', '::1', '[::1]')
+
+
+@dataclass(frozen=True)
+class DaskScheduler:
+    """A Dask scheduler to send work to: its address, and for ``tls://`` the certificates that
+    reach it (distributed's :class:`distributed.security.Security` is built from them).
+
+    A scheduler on another host runs whatever it is sent, and the work carries the sessions and
+    settings: over plain ``tcp://`` anyone on the network can read and alter both. Such an
+    address is refused unless ``insecure`` says the network is trusted; ``tls://`` needs the
+    CA, certificate and key files."""
+
+    address: str
+    tls_ca_file: str | None = None
+    tls_cert_file: str | None = None
+    tls_key_file: str | None = None
+    insecure: bool = False
+
+    def __post_init__(self) -> None:
+        scheme, sep, rest = self.address.partition('://')
+        host = rest.rsplit(':', 1)[0] if sep else self.address.rsplit(':', 1)[0]
+        given = [f for f in (self.tls_ca_file, self.tls_cert_file, self.tls_key_file) if f]
+        if scheme == 'tls' and sep:
+            if len(given) != 3:
+                raise TurningForceError(f'--dask {shortened(self.address)}: tls:// needs '
+                                        '--tls-ca, --tls-cert and --tls-key')
+            for name in given:
+                if not Path(name).is_file():
+                    raise TurningForceError(f'--dask {shortened(self.address)}: {name}: no such '
+                                            'file')
+            return
+        if given:
+            raise TurningForceError(f'--dask {shortened(self.address)}: --tls-ca, --tls-cert '
+                                    'and --tls-key are for a tls:// address')
+        if host not in LOCAL_HOSTS and not (scheme == 'inproc' and sep) and not self.insecure:
+            raise TurningForceError(
+                f'--dask {shortened(self.address)}: a scheduler on another host without TLS '
+                '(anyone on the network could read the sessions and run code on the workers): '
+                'give a tls:// address with --tls-ca, --tls-cert and --tls-key, or --insecure '
+                'on a network you trust')
+
+    def security(self) -> Any:
+        """distributed's Security for this address (None: plain)."""
+        if self.tls_ca_file is None:
+            return None
+        from distributed.security import Security
+
+        return Security(tls_ca_file=self.tls_ca_file,   # type: ignore[no-untyped-call]
+                        tls_client_cert=self.tls_cert_file, tls_client_key=self.tls_key_file,
+                        require_encryption=True)
+
+
 def _map_dask(dask: Any, func: Callable[..., Any], calls: Sequence[tuple[Any, ...]],
               shared: Any, done: Callable[[int, Any], None]) -> str:
     """The same on a Dask cluster: ``func(shared, *call)``, ``shared`` sent to every worker
-    once. Returns the scheduler's address."""
+    once. ``dask``: a :class:`DaskScheduler`, an address (checked as one), or a
+    ``distributed.Client``. Returns the scheduler's address."""
     try:
         import distributed
     except ImportError:
         raise TurningForceError('--dask: dask.distributed is not installed; pip install '
                                 "'turning_force[dask]'") from None
     own = not isinstance(dask, distributed.Client)
-    address = str(dask) if own else str(dask.scheduler.address)
+    scheduler = (dask if isinstance(dask, DaskScheduler) else DaskScheduler(str(dask))) \
+        if own else None
+    address = scheduler.address if scheduler is not None else str(dask.scheduler.address)
     connect: Any = distributed.Client
     try:
-        client = connect(address, timeout='10s') if own else dask
+        client = (connect(address, timeout='10s', security=scheduler.security())
+                  if scheduler is not None else dask)
     except (OSError, TimeoutError, ValueError) as exc:
         raise TurningForceError(f'--dask {address}: cannot connect: {_error_text(exc)}') \
             from exc
@@ -734,11 +792,14 @@ class SessionReplay:
     comparison: dict[str, float] = field(default_factory=dict)
     warning: str = ''
     error: str = ''
+    state: dict[str, Any] = field(default_factory=dict)   # Wholeness.to_json()
 
     def to_json(self, sets: Sequence[str]) -> dict[str, Any]:
         out: dict[str, Any] = {'session': self.session, 'sets': list(sets),
                                'metrics': self.metrics, 'recorded_metrics': self.recorded_metrics,
                                'comparison': self.comparison}
+        if self.state:
+            out['session_state'] = self.state
         if self.warning:
             out['warning'] = self.warning
         if self.error:
@@ -768,8 +829,10 @@ def _replay_bag(job: _ReplayJob, bag: str, shown: str) -> SessionReplay:
     except Exception as exc:   # this session's error, reported with it
         return SessionReplay(shown, error=_error_text(exc).replace(bag, shown))
     comparison = result.comparison(len(session.blocks))
+    state = session.wholeness.to_json() if session.wholeness is not None else {}
     return SessionReplay(shown, len(session.blocks), dict(result.rerun),
-                         dict(result.recorded), comparison, session.warning.replace(bag, shown))
+                         dict(result.recorded), comparison, session.warning.replace(bag, shown),
+                         state=state)
 
 
 def replay_sessions(bags: Iterable[str | Path], sets: Sequence[str] = (), *,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ['ConfigError', 'NoCutError', 'TurningForceError']
+__all__ = ['ConfigError', 'NoCutError', 'TurningForceError', 'shortened']
 
 
 class TurningForceError(Exception):
@@ -18,3 +18,10 @@ class ConfigError(TurningForceError, ValueError):
 
     The message names the key (``section.name``) and the bad value, and says what was expected.
     """
+
+
+def shortened(text: str, limit: int = 80) -> str:
+    """``text`` on one line and at most ``limit`` characters, for an error line that names a
+    bad value (a whole file echoed back would bury the line)."""
+    flat = ' '.join(str(text).split())
+    return flat if len(flat) <= limit else f'{flat[:limit - 3]}...'

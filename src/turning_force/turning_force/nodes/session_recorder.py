@@ -6,7 +6,8 @@ writes them to ``output_dir`` as they come, stamped with this node's clock at re
 executor that runs the recorder with the control graph never waits for the disk
 (``background=False`` writes on the executor's thread, for comparison). Embeds the experiment
 file (``experiment_file``), the software versions and the resolved parameters: its owner
-passes them (:meth:`SessionRecorderNode.add_custom_data`), or with ``capture_parameters`` it
+passes them (``custom_data``, :meth:`SessionRecorderNode.add_custom_data`), or with
+``capture_parameters`` it
 asks the graph's nodes over their parameter services. A killed recorder loses at most
 ``flush_period_s`` of data (``turning-force repair`` completes the session). A write that fails
 stops the recording with one error, logged, on ``/diagnostics`` and in
@@ -30,7 +31,7 @@ from rclpy.parameter import parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, String
 from turning_force_msgs.msg import (
     CutRecord,
     CuttingState,
@@ -50,9 +51,11 @@ from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
     CUSTOM_PARAMETERS,
     CUSTOM_VERSIONS,
+    SETTINGS_TOPIC,
     BagError,
     SessionWriter,
     dumps,
+    settings_text,
     software_versions,
 )
 
@@ -85,24 +88,31 @@ class SessionRecorderNode(Node):
     ``background``: the disk work on a writer thread (true), or on the executor's thread.
     """
 
-    def __init__(self, *, background: bool = True, **kwargs: Any) -> None:
+    def __init__(self, *, background: bool = True, custom_data: dict[str, str] | None = None,
+                 **kwargs: Any) -> None:
         super().__init__('session_recorder', **kwargs)
         stamp = datetime.datetime.now().strftime('%Y%m%d_%H%M%S')
         # Declared from the core's RecorderSettings: ranges checked, a mistyped key refused.
         self.parameters = SettingsParameters(self, RecorderSettings)
         path = Path(self.get_parameter('output_dir').value or f'bags/session_{stamp}')
-        self.writer = SessionWriter(path, float(self.get_parameter('flush_period_s').value),
-                                    background=background)
-        self.writer.set_custom_data(CUSTOM_VERSIONS, dumps(software_versions()))
+        custom = {CUSTOM_VERSIONS: dumps(software_versions()), **(custom_data or {})}
         experiment = str(self.get_parameter('experiment_file').value)
         if experiment:
-            self.writer.set_custom_data(CUSTOM_EXPERIMENT, Path(experiment).read_text())
+            custom[CUSTOM_EXPERIMENT] = Path(experiment).read_text()
+        self._parameters_given = CUSTOM_PARAMETERS in custom
+        self.writer = SessionWriter(path, float(self.get_parameter('flush_period_s').value),
+                                    background=background, custom_data=custom)
         self.diagnostics = Diagnostics(self)
         self._closed = False
         self.failure: BagError | None = None   # why recording stopped, if a write failed
         # The receipt time of every message, without a clock call per message.
         self._time = NodeTime(self)
         self._early: list[tuple[str, bytes]] = []   # received before sim time began
+        # The custom data as a topic too, so that any bag tool keeps it (session/bag.py); and
+        # published, latched, for a live view of the session.
+        self.writer.record_settings(self.resolve_topic_name(SETTINGS_TOPIC))
+        self._settings_publisher = self.create_publisher(String, SETTINGS_TOPIC, REFERENCE_QOS)
+        self._publish_settings()
         self.create_timer(1.0, timer_callback(self._check_writer))
         for topic, cls in GRAPH_TOPICS.items():
             name = self.resolve_topic_name(topic)
@@ -112,7 +122,6 @@ class SessionRecorderNode(Node):
         self._captured: dict[str, dict[str, Any]] = {}
         self._asking: set[str] = set()
         self._parameter_clients: dict[str, AsyncParameterClient] = {}
-        self._parameters_given = False
         if self.get_parameter('capture_parameters').value:
             self.create_timer(1.0, self._capture_parameters)
         self.get_logger().info(f'recording to {path}')
@@ -189,6 +198,16 @@ class SessionRecorderNode(Node):
     def add_custom_data(self, key: str, value: str) -> None:
         self.writer.set_custom_data(key, value)
         self._parameters_given |= key == CUSTOM_PARAMETERS
+        self._publish_settings()
+
+    def _publish_settings(self) -> None:
+        self._settings_publisher.publish(String(data=settings_text(self.writer.custom_data)))
+
+    def end(self, stopped_by: str | None) -> None:
+        """Say, before :meth:`close`, what stopped the run before its planned end (None: it
+        ran to it); the session records it with the blocks it holds."""
+        if not self._closed:
+            self.writer.end(stopped_by)
 
     def close(self) -> None:
         """Finish the session (summary, index, metadata.yaml). Idempotent. Raises the

@@ -10,6 +10,11 @@ So that a session survives what a shop does to it:
 - ``metadata.yaml`` is written when the session opens (topics, custom data, and
   ``turning_force.recording`` saying the counts are not final) and rewritten with the counts
   when it closes; a recorder killed with SIGKILL leaves a folder that says what it is.
+- The same custom data is recorded as a topic too (``session/settings``, ``std_msgs/String``
+  holding YAML, transient-local, the way robot descriptions are): once before the first message
+  and once more as the session closes, with how it ended (:data:`CUSTOM_END`: stopped by whom,
+  after how many of the planned blocks). A bag tool that rewrites ``metadata.yaml`` or drops
+  its custom data (``rosbags-convert``) keeps them; ``metadata.yaml`` is a convenience copy.
 - Every chunk carries the CRC-32 of its records (MCAP's ``uncompressed_crc``, which rosbags
   leaves at 0), so a reader finds a changed byte instead of decoding it.
 - A write that fails (disk full, file size limit) is one :class:`BagError` naming the session;
@@ -36,6 +41,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import yaml
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.rosbag2.errors import WriterError
 from rosbags.rosbag2.storage_mcap import (
@@ -52,8 +65,11 @@ from rosbags.typesys.store import Typestore
 
 from turning_force.core.errors import ConfigError, TurningForceError
 
-__all__ = ['CUSTOM_EXPERIMENT', 'CUSTOM_PARAMETERS', 'CUSTOM_RECORDING', 'CUSTOM_REPAIR',
-           'CUSTOM_VERSIONS', 'BagError', 'SessionWriter', 'software_versions', 'typestore']
+__all__ = ['CUSTOM_END', 'CUSTOM_EXPERIMENT', 'CUSTOM_PARAMETERS', 'CUSTOM_PLANNED',
+           'CUSTOM_RECORDING', 'CUSTOM_REPAIR', 'CUSTOM_VERSIONS', 'SETTINGS_TOPIC',
+           'SETTINGS_TYPE', 'BagError', 'SessionWriter', 'settings_message', 'settings_text',
+           'software_versions',
+           'stopped_by', 'typestore']
 
 CUSTOM_EXPERIMENT = 'turning_force.experiment_yaml'
 CUSTOM_PARAMETERS = 'turning_force.parameters_json'
@@ -63,6 +79,20 @@ CUSTOM_VERSIONS = 'turning_force.versions_json'
 CUSTOM_RECORDING = 'turning_force.recording'
 # What ``turning-force repair`` recovered and what was lost (JSON).
 CUSTOM_REPAIR = 'turning_force.repair_json'
+# The control blocks a simulated run planned (duration / control period), set at its start.
+CUSTOM_PLANNED = 'turning_force.planned_blocks'
+# How the recording ended, set as it closes (JSON): ``stopped_by`` (the signal or error that
+# stopped the run early; null: it ran to its end, or a recorder with no plan was stopped),
+# ``blocks`` (servo/currents blocks recorded) and ``planned`` (null where there is no plan).
+CUSTOM_END = 'turning_force.end_json'
+# The topic the custom data is recorded on (relative: a namespaced graph's own).
+SETTINGS_TOPIC = 'session/settings'
+SETTINGS_TYPE = 'std_msgs/msg/String'
+# Latched, as rosbag2 records a transient-local publisher (``ros2 bag play`` republishes it so).
+LATCHED = Qos(QosHistory.UNKNOWN, 0, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL,
+              QosTime(2147483647, 4294967295), QosTime(2147483647, 4294967295),
+              QosLiveliness.AUTOMATIC, QosTime(2147483647, 4294967295),
+              avoid_ros_namespace_conventions=False)
 MSG_PACKAGE = 'turning_force_msgs'
 
 
@@ -110,6 +140,19 @@ def software_versions() -> dict[str, str]:
         except PackageNotFoundError:
             out[dist] = 'not installed'
     return out
+
+
+def settings_text(custom: dict[str, str]) -> str:
+    """The ``session/settings`` message's text: ``custom`` as YAML."""
+    return yaml.safe_dump({k: v for k, v in sorted(custom.items()) if k != CUSTOM_RECORDING},
+                          width=100)
+
+
+def settings_message(custom: dict[str, str]) -> bytes:
+    """The ``session/settings`` message (CDR) holding ``custom`` as YAML."""
+    store = typestore()
+    message = store.types[SETTINGS_TYPE](data=settings_text(custom))
+    return bytes(store.serialize_cdr(message, SETTINGS_TYPE))
 
 
 class _CrcMcapWriter(McapWriter):
@@ -231,7 +274,8 @@ class SessionWriter:
     messages; a write to a full queue waits for the thread (nothing is dropped). A write that
     fails on the thread stops it; the :class:`BagError` is :attr:`failure`, and the next
     :meth:`write`, :meth:`flush` or :meth:`close` raises it. :meth:`close` writes what is
-    queued first.
+    queued first. ``custom_data`` is in the session from its first ``metadata.yaml`` (a run's
+    settings and plan: a kill at any time leaves a session that has them).
     """
 
     # How long the writer thread lets messages gather before it writes them [s]: batches keep
@@ -242,7 +286,7 @@ class SessionWriter:
     YIELD_EVERY = 16
 
     def __init__(self, path: Path, flush_period_s: float = 1.0, background: bool = False,
-                 queue_limit: int = 20_000) -> None:
+                 queue_limit: int = 20_000, custom_data: dict[str, str] | None = None) -> None:
         if path.exists():
             raise BagError(f'{path}: exists already; a session is never overwritten')
         self._typestore = typestore()  # before anything is created on disk
@@ -253,6 +297,8 @@ class SessionWriter:
         self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         self._writer.set_custom_data(CUSTOM_RECORDING, 'open: the message counts are written '
                                      'when the session closes')
+        for key, value in (custom_data or {}).items():   # in the first metadata.yaml already
+            self._writer.set_custom_data(key, value)
         self._connections: dict[str, Any] = {}
         self._flush_period_s = flush_period_s
         self._last_flush = time.monotonic()
@@ -267,6 +313,9 @@ class SessionWriter:
         self._told = False   # the failure has been raised to a caller
         self.queue_high_water = 0   # the most messages ever waiting for the thread
         self._thread: threading.Thread | None = None
+        self._settings: str | None = None   # the settings topic, once it is recorded
+        self._settings_due = False   # its first message not written yet
+        self._last_ns = 0   # the latest log time written [ns]
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             self._writer.open()
@@ -337,16 +386,40 @@ class SessionWriter:
             return self._guarded(action)
 
     def add_topic(self, topic: str, msgtype: str,
-                  definition: tuple[str, str] | None = None) -> None:
+                  definition: tuple[str, str] | None = None, latched: bool = False) -> None:
         """A topic of ``msgtype``, as our type store defines it, or as ``definition`` (message
         definition text, RIHS01 hash) does: a session rewritten keeps the definitions it was
-        recorded with."""
+        recorded with. ``latched``: offered transient-local."""
         msgdef, rihs01 = definition if definition is not None else (None, None)
         self._connections[topic] = self._quiet(
             lambda: self._writer.add_connection(topic, msgtype, typestore=self._typestore,
-                                                msgdef=msgdef, rihs01=rihs01))
+                                                msgdef=msgdef, rihs01=rihs01,
+                                                offered_qos_profiles=[LATCHED] if latched else []))
         self.counts[topic] = 0
         self._quiet(self._write_open_metadata)
+
+    def record_settings(self, topic: str = f'/{SETTINGS_TOPIC}') -> None:
+        """Record the custom data on ``topic`` too (the module docstring): before the first
+        message, and as the session closes."""
+        self.add_topic(topic, SETTINGS_TYPE, latched=True)
+        self._settings, self._settings_due = topic, True
+
+    def end(self, stopped_by: str | None) -> None:
+        """Say how the recording ends (:data:`CUSTOM_END`), before :meth:`close`:
+        ``stopped_by`` what stopped the run before its planned end (None: it ran to it, or
+        there was no plan); the servo/currents blocks recorded are counted here."""
+        if self.failure is not None or self._closed:   # nothing more is written
+            return
+        planned = self._writer.custom_data.get(CUSTOM_PLANNED)
+        blocks = sum(n for t, n in self.counts.items() if t.endswith('servo/currents'))
+        self.set_custom_data(CUSTOM_END, json.dumps({
+            'stopped_by': stopped_by, 'blocks': blocks,
+            'planned': None if planned is None else int(planned)}))
+
+    @property
+    def custom_data(self) -> dict[str, str]:
+        """The session's custom data so far."""
+        return dict(self._writer.custom_data)
 
     def set_custom_data(self, key: str, value: str) -> None:
         with self._disk:
@@ -355,6 +428,9 @@ class SessionWriter:
             self._quiet(self._write_open_metadata)
 
     def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
+        if self._settings_due:
+            self._settings_first(timestamp_ns)
+        self._last_ns = max(self._last_ns, timestamp_ns)
         if self._thread is None:
             self._guarded(self._writer.write, self._connections[topic], timestamp_ns, data)
             self.counts[topic] += 1
@@ -381,6 +457,12 @@ class SessionWriter:
             pending.append((connection, timestamp_ns, data))
             self.queue_high_water = max(self.queue_high_water, len(pending))
         self.counts[topic] += 1
+
+    def _settings_first(self, timestamp_ns: int) -> None:
+        """The settings message, before the first message (logged with it)."""
+        self._settings_due = False
+        if self._settings is not None:
+            self.write(self._settings, timestamp_ns, settings_message(self._writer.custom_data))
 
     @property
     def queued(self) -> int:
@@ -434,6 +516,8 @@ class SessionWriter:
         writer thread (``background``): its queue would be overtaken."""
         if self._thread is not None:
             raise RuntimeError(f'{self.path}: write_indexed on a session written by a thread')
+        if self._settings_due and timestamps_ns.size:
+            self._settings_first(int(timestamps_ns[0]))
         connections = [self._connections[t] for t in topics]
         channel_of = np.array([c.id for c in connections], dtype=np.int64)
         channels = channel_of[topic_index]
@@ -447,6 +531,7 @@ class SessionWriter:
                 self._writer.counts[connection.id] += count
                 self.counts[topics[k]] += count
             if timestamps_ns.size:
+                self._last_ns = max(self._last_ns, int(timestamps_ns.max()))
                 self._writer.min_timestamp = min(self._writer.min_timestamp,
                                                  int(timestamps_ns.min()))
                 self._writer.max_timestamp = max(self._writer.max_timestamp,
@@ -483,9 +568,28 @@ class SessionWriter:
                 self._told = True   # the thread's failure, not yet raised to anyone
                 raise self.failure
             return
+        if CUSTOM_END not in self._writer.custom_data and self._settings is not None:
+            self.end(None)   # a recording that records its settings says it closed
         self._writer.custom_data.pop(CUSTOM_RECORDING, None)
+        if self._settings is not None:   # the settings again, with how the recording ended
+            self._settings_due = False
+            self._guarded(self._writer.write, self._connections[self._settings], self._last_ns,
+                          settings_message(self._writer.custom_data))
+            self.counts[self._settings] += 1
         self._guarded(self._writer.close)
         self._closed = True
+
+
+def stopped_by(exc: BaseException) -> str:
+    """What stopped a run, for :meth:`SessionWriter.end`: the signal's name, or the error's
+    first line (shortened)."""
+    name = getattr(exc, 'signal_name', None)
+    if isinstance(name, str):
+        return name
+    if isinstance(exc, KeyboardInterrupt):
+        return 'SIGINT'
+    text = f'{type(exc).__name__}: {exc}'.splitlines()[0]
+    return text if len(text) <= 120 else text[:117] + '...'
 
 
 def dumps(value: object) -> str:

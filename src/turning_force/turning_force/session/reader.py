@@ -16,6 +16,12 @@ is there and :attr:`Session.warning` saying how much is missing, which the comma
 A session rebuilt by ``turning-force repair`` reads without ``partial``, with that warning.
 A damaged file from which nothing was lost (a torn summary: every message counted) reads with
 a warning too.
+
+Every session read says how whole it is (:class:`Wholeness`): whole, ended early (closed
+cleanly before its planned count of blocks), killed (never closed) or damaged, with the count
+of blocks; chunks without a CRC are named as unverifiable. The settings come from the
+``session/settings`` topic where the session has it (``metadata.yaml``'s custom data is a copy,
+which bag tools drop), and only files inside the session folder are read (:func:`inside`).
 """
 
 from __future__ import annotations
@@ -42,7 +48,7 @@ from rosbags.typesys import (
 )
 from rosbags.typesys.store import Typestore
 
-from turning_force.core.errors import ConfigError
+from turning_force.core.errors import ConfigError, shortened
 from turning_force.core.experiment import Experiment, build_experiment, parse_experiment
 from turning_force.core.kernel.batch import CurrentArrays, InputArrays
 from turning_force.core.metrics import compute_metrics
@@ -50,20 +56,25 @@ from turning_force.core.plant.drive import CurrentBlock
 from turning_force.core.pmc.shopfloor import CutRecord, InputValues
 from turning_force.session import codec
 from turning_force.session.bag import (
+    CUSTOM_END,
     CUSTOM_EXPERIMENT,
     CUSTOM_PARAMETERS,
+    CUSTOM_PLANNED,
     CUSTOM_RECORDING,
     CUSTOM_REPAIR,
     CUSTOM_VERSIONS,
+    SETTINGS_TOPIC,
+    SETTINGS_TYPE,
     BagError,
     typestore,
 )
 from turning_force.session.codec import DECODE_ERRORS, Table, TableBuilder
 from turning_force.session.scan import McapScan, MessageSink, scan_mcap
 
-__all__ = ['DECODE_ERRORS', 'Recording', 'Session', 'TopicInfo', 'applied_overrides',
-           'estimate_metrics', 'read_metadata', 'read_recording', 'read_session',
-           'recorded_metrics', 'recorded_reachable', 'session_typestore']
+__all__ = ['DAMAGED', 'DECODE_ERRORS', 'ENDED_EARLY', 'KILLED', 'WHOLE', 'Recording', 'Session',
+           'TopicInfo', 'Wholeness', 'applied_overrides', 'estimate_metrics', 'inside',
+           'is_settings', 'read_metadata', 'read_recording', 'read_session', 'recorded_metrics',
+           'recorded_reachable', 'session_typestore', 'settings_data', 'wholeness']
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -166,13 +177,13 @@ class Recording:
         counts = [t.count for name, t in self.topics.items() if _topic(name) == relative]
         return None if None in counts or not counts else sum(c or 0 for c in counts)
 
-    def check(self, partial: bool, extra: Sequence[str] = ()) -> str:
+    def check(self, partial: bool, extra: Sequence[str] = (), state: str = '') -> str:
         """Raise the :class:`BagError` that says what is missing, unless ``partial`` or the
         session was repaired (what it lacks is known then); return the warning to print
-        (empty if there is nothing to say)."""
+        (empty if there is nothing to say). ``state`` (:class:`Wholeness`) heads the text."""
         missing = [*extra, *self.missing]
         if missing:
-            text = f'{self.path}: {_listed(missing)}'
+            text = f'{self.path}: {state + ": " if state else ""}{_listed(missing)}'
             if self.damage:
                 text += f'; {self.file}: {_listed(self.damage)}'
             if not partial and not self.note:
@@ -189,11 +200,133 @@ class Recording:
         return '; '.join(warning)
 
 
+WHOLE, ENDED_EARLY, KILLED, DAMAGED = 'whole', 'ended early', 'killed', 'damaged'
+
+
+@dataclass(frozen=True)
+class Wholeness:
+    """How whole a session is, one of four states:
+
+    - ``whole``: closed cleanly, every recorded message read (and every planned block, for a
+      run with a plan);
+    - ``ended early``: closed cleanly, but stopped before its plan (by the user or a signal it
+      caught): ``blocks`` of ``planned``;
+    - ``killed``: never closed (SIGKILL, a power cut, a full disk): what the complete chunks
+      hold, ``blocks``; what the recorder wrote after them (at most one chunk) is lost;
+    - ``damaged``: closed, but CRC or structure errors in its file, or fewer messages than it
+      recorded: ``lost`` says what.
+
+    ``unverified`` of ``chunks`` carry no CRC (written by a tool that does not compute one):
+    their bytes cannot be checked, which every state mentions.
+    """
+
+    state: str
+    blocks: int
+    planned: int | None = None
+    recorded: int | None = None   # the servo/currents blocks the recorder counted
+    stopped_by: str | None = None
+    lost: tuple[str, ...] = ()
+    chunks: int = 0
+    unverified: int = 0
+    repaired: bool = False
+
+    def line(self) -> str:
+        """One phrase, beginning with the state."""
+        of = f' of {self.planned} planned' if self.planned is not None else ''
+        if self.state == ENDED_EARLY:
+            text = (f'ended early: stopped by {self.stopped_by or "its recorder"} after '
+                    f'{self.blocks}{of} blocks (closed cleanly)')
+        elif self.state == KILLED:
+            text = (f'killed: never closed; the complete chunks hold {self.blocks}{of} blocks, '
+                    'and what was recorded after them (at most one chunk) is lost')
+        elif self.state == DAMAGED:
+            text = (f'damaged: {self.blocks}{of} blocks read'
+                    + (f'; {_listed(list(self.lost))}' if self.lost else ''))
+        else:
+            text = f'whole: {self.blocks}{of} blocks'
+        if self.repaired:
+            text += ' (repaired)'
+        if self.unverified:
+            text += (f'; {self.unverified} of {self.chunks} chunks carry no CRC: their bytes '
+                     'cannot be verified')
+        return text
+
+    def to_json(self) -> dict[str, Any]:
+        return {'state': self.state, 'blocks': self.blocks, 'planned': self.planned,
+                'recorded': self.recorded, 'stopped_by': self.stopped_by, 'lost': list(self.lost),
+                'chunks': self.chunks, 'unverified_chunks': self.unverified,
+                'repaired': self.repaired, 'text': self.line()}
+
+
+def _json_object(text: str | None) -> dict[str, Any] | None:
+    try:
+        value = json.loads(text) if text is not None else None
+    except ValueError:
+        return None
+    return value if isinstance(value, dict) else None
+
+
+def _count(value: Any) -> int | None:
+    try:
+        return None if value is None else int(value)
+    except (TypeError, ValueError):
+        return None
+
+
+def wholeness(recording: Recording, scan: McapScan, blocks: int, problems: Sequence[str],
+              settings_recorded: bool) -> Wholeness:
+    """The :class:`Wholeness` of a session read: ``blocks`` of servo/currents read,
+    ``problems`` what reading them found wrong (gaps, undecodable messages),
+    ``settings_recorded`` whether the file holds a session/settings message."""
+    custom = recording.custom_data
+    end = _json_object(custom.get(CUSTOM_END))
+    repair = _json_object(custom.get(CUSTOM_REPAIR))
+    planned = _count(custom.get(CUSTOM_PLANNED))
+    recorded = _count(end.get('blocks')) if end is not None else None
+    if recorded is None:
+        recorded = recording.recorded('servo/currents')
+    killed = CUSTOM_RECORDING in custom or (end is None and (
+        settings_recorded or (repair is not None and repair.get('recorded') is None)))
+    lost = [*problems, *(m for m in recording.missing if 'never closed' not in m),
+            *scan.damage]
+    if not killed and recorded is not None and blocks < recorded:
+        lost.insert(0, f'servo/currents {blocks} of {recorded} recorded blocks read')
+    if not killed and repair is not None and repair.get('damage'):   # lost before the repair
+        lost.append(shortened(str(repair.get('summary', 'repaired')), 200))
+    stopped = end.get('stopped_by') if end is not None else None
+    if killed:
+        state = KILLED
+    elif lost:
+        state = DAMAGED
+    elif stopped is not None or (planned is not None and blocks < planned):
+        state = ENDED_EARLY
+    else:
+        state = WHOLE
+    return Wholeness(state, blocks, planned, recorded if not killed else None,
+                     str(stopped) if stopped is not None else None, tuple(lost), scan.chunks,
+                     scan.unverified, repair is not None)
+
+
 def read_metadata(path: Path) -> tuple[dict[str, Any], dict[str, str], dict[str, TopicInfo]]:
-    """metadata.yaml: its rosbag2 information, custom data and topics."""
+    """metadata.yaml: its rosbag2 information, custom data and topics (a :class:`BagError`
+    of one line saying what is wrong with it, the bad value shortened)."""
     where = path / 'metadata.yaml'
     try:
-        info = yaml.load(where.read_text(), Loader=SAFE_LOADER)['rosbag2_bagfile_information']
+        loaded = yaml.load(where.read_bytes(), Loader=SAFE_LOADER)
+    except OSError as exc:
+        raise BagError(f'{where}: cannot read: {exc.strerror or exc}') from exc
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        at = f' at line {mark.line + 1}, column {mark.column + 1}' if mark is not None else ''
+        problem = getattr(exc, 'problem', None) or exc
+        raise BagError(f'{where}: not rosbag2 metadata: not YAML{at} '
+                       f'({shortened(str(problem))})') from exc
+    info = loaded.get('rosbag2_bagfile_information') if isinstance(loaded, dict) else None
+    if not isinstance(info, dict):
+        raise BagError(f'{where}: not rosbag2 metadata: no rosbag2_bagfile_information mapping '
+                       f'(it holds {shortened(repr(loaded), 60)})')
+    entry: Any = None
+    try:
         custom = {str(k): str(v) for k, v in (info.get('custom_data') or {}).items()}
         recording = CUSTOM_RECORDING in custom
         topics = {}
@@ -203,20 +336,41 @@ def read_metadata(path: Path) -> tuple[dict[str, Any], dict[str, str], dict[str,
             topics[name] = TopicInfo(name, str(meta['type']),
                                      None if recording else int(entry['message_count']),
                                      str(meta.get('type_description_hash') or ''))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError, ValueError,
-            AttributeError) as exc:
-        raise BagError(f'{where}: not rosbag2 metadata: {exc!r}') from exc
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        what = (f'the topic entry {shortened(repr(entry), 60)}' if entry is not None
+                else 'custom_data or topics_with_message_count')
+        raise BagError(f'{where}: not rosbag2 metadata: {what} is malformed') from exc
     return info, custom, topics
 
 
 def _mcap_file(path: Path, info: dict[str, Any]) -> Path:
     storage = info.get('storage_identifier', 'mcap')
     if storage != 'mcap':
-        raise BagError(f'{path}: storage {storage!r}: turning_force sessions are MCAP')
+        raise BagError(f'{path}: storage {shortened(repr(storage), 40)}: turning_force '
+                       'sessions are MCAP')
     files = info.get('relative_file_paths') or []
     if not isinstance(files, list) or len(files) != 1:
-        raise BagError(f'{path}: metadata.yaml lists {files!r}: a session is one .mcap file')
-    return path / str(files[0])
+        raise BagError(f'{path}: metadata.yaml lists {shortened(repr(files), 60)}: a session '
+                       'is one .mcap file')
+    return inside(path, str(files[0]), 'metadata.yaml names')
+
+
+def inside(path: Path, name: str, what: str) -> Path:
+    """The file ``name`` of the session folder ``path``, which must be in it: a name with a
+    folder in it (``../``, an absolute path) or a link out of the folder is refused, so that
+    what reads or repairs a session touches nothing outside it. And the only .mcap there: a
+    second one is refused (which is the session?)."""
+    where = path / name
+    if Path(name).name != name or name in ('', '.', '..') or \
+            where.resolve().parent != path.resolve():
+        raise BagError(f'{path}: {what} {shortened(repr(name), 200)}, which is not a file in the '
+                       'session folder: refused (a session reads and rewrites only its own '
+                       'files)')
+    others = sorted(f.name for f in path.glob('*.mcap') if f.name != name)
+    if others:
+        raise BagError(f'{path}: {", ".join([name, *others][:4])}: more than one .mcap in the '
+                       'session folder; a session is one .mcap (move the others out)')
+    return where
 
 
 def _open(path: Path) -> tuple[dict[str, Any], dict[str, str], dict[str, TopicInfo]]:
@@ -244,7 +398,10 @@ def read_recording(path: str | Path) -> Recording:
     :meth:`Recording.check`)."""
     path = Path(path)
     info, custom, topics = _open(path)
-    return _recording(path, custom, topics, _scan(_mcap_file(path, info)))
+    scan = _scan(_mcap_file(path, info))
+    settings = [m.data for m in scan.messages if is_settings(
+        getattr(scan.channels.get(m.channel_id), 'topic', ''))]
+    return _recording(path, {**custom, **settings_data(settings)[0]}, topics, scan)
 
 
 def _recording(path: Path, custom: dict[str, str], topics: dict[str, TopicInfo],
@@ -304,6 +461,30 @@ def _recording(path: Path, custom: dict[str, str], topics: dict[str, TopicInfo],
     return recording
 
 
+def is_settings(topic: str) -> bool:
+    """Whether ``topic`` is the session's settings topic (in any namespace)."""
+    return topic == SETTINGS_TOPIC or topic.endswith(f'/{SETTINGS_TOPIC}')
+
+
+def settings_data(messages: Sequence[bytes]) -> tuple[dict[str, str], list[str]]:
+    """The custom data the session/settings messages hold (a later message's keys over an
+    earlier one's), and what is wrong with those that cannot be read."""
+    out: dict[str, str] = {}
+    problems: list[str] = []
+    for raw in messages:
+        try:
+            text = str(getattr(typestore().deserialize_cdr(raw, SETTINGS_TYPE), 'data', ''))
+            value = yaml.load(text, Loader=SAFE_LOADER)
+        except (*DECODE_ERRORS, yaml.YAMLError) as exc:
+            problems.append(f'a {SETTINGS_TOPIC} message is unreadable ({shortened(str(exc))})')
+            continue
+        if not isinstance(value, dict):
+            problems.append(f'a {SETTINGS_TOPIC} message holds no mapping')
+            continue
+        out.update({str(k): str(v) for k, v in value.items()})
+    return out, problems
+
+
 def _repair_note(text: str) -> str:
     try:
         repair = json.loads(text)
@@ -343,6 +524,8 @@ class Session:
     message_counts: dict[str, int] = field(default_factory=dict)   # read, per topic
     # The blocks of a session whose blocks differ (no ``currents`` then).
     ragged: list[CurrentBlock] | None = None
+    # Whether it is whole, ended early, killed or damaged, and how many blocks it holds.
+    wholeness: Wholeness | None = None
 
     @property
     def blocks(self) -> Sequence[CurrentBlock]:
@@ -495,6 +678,7 @@ class _Decoder:
         self._later: list[tuple[int, bytes]] = []   # messages of channels not described yet
         self.failed: Counter[str] = Counter()
         self.problems: list[str] = []
+        self.settings: list[bytes] = []   # the session/settings messages (CDR), in order
 
     def _channel(self, scan: McapScan, index: int, final: bool
                  ) -> tuple[Typestore, str, str, TableBuilder] | None:
@@ -541,6 +725,11 @@ class _Decoder:
         del log_times
         for index in np.flatnonzero(np.bincount(channels)).tolist():
             chosen = channels == index if channels.size > 1 else np.ones(1, dtype=bool)
+            channel = scan.channels.get(index)
+            if channel is not None and is_settings(channel.topic):
+                self.settings += [bytes(data[o:o + n]) for o, n in zip(
+                    offsets[chosen].tolist(), sizes[chosen].tolist(), strict=True)]
+                continue
             found = self._channel(scan, index, final=False)
             if found is None:
                 if index not in self._channels:   # described later in the file, maybe
@@ -562,6 +751,10 @@ class _Decoder:
         """The tables of the topics read, by relative name (messages of channels the file
         describes only after them, or in its summary, decoded now)."""
         for index, raw in self._later:
+            channel = scan.channels.get(index)
+            if channel is not None and is_settings(channel.topic):
+                self.settings.append(raw)
+                continue
             found = self._channel(scan, index, final=True)
             if found is not None:
                 data = np.frombuffer(raw, dtype=np.uint8)
@@ -716,9 +909,11 @@ def read_session(path: str | Path, partial: bool = False) -> Session:
     _check_types(path, topics)
     decoder = _Decoder(path, topics)
     scan = _scan(_mcap_file(path, info), decoder.take)
-    recording = _recording(path, custom, topics, scan)
     tables = decoder.finish(scan)
-    failed = [*decoder.problems,
+    recorded_settings, unreadable = settings_data(decoder.settings)
+    custom = {**custom, **recorded_settings}   # metadata.yaml's are a copy: the topic's first
+    recording = _recording(path, custom, topics, scan)
+    failed = [*unreadable, *decoder.problems,
               *(f'{n} {topic} messages cannot be decoded' for topic, n in decoder.failed.items())]
     currents, ragged, stamps, gaps = _blocks(tables.get('servo/currents'))
     count = len(currents) if currents is not None else len(ragged or [])
@@ -731,11 +926,18 @@ def read_session(path: str | Path, partial: bool = False) -> Session:
         start = float(currents.t0_s[0]) if currents is not None else (ragged or [])[0].t0_s
         read[0] += f' ({start:.3f}-{float(t_end[-1]):.3f} s)'
     problems = [*failed, *gaps]
+    state = wholeness(recording, scan, count, problems, bool(decoder.settings))
     if recording.missing or problems:
         problems = [*read, *problems]
-    warning = recording.check(partial, problems)
+    label = {KILLED: state.line(), DAMAGED: DAMAGED}.get(state.state, '')
+    warning = recording.check(partial, problems, label)
+    if state.state == ENDED_EARLY or (state.state == WHOLE and state.unverified):
+        warning = '; '.join(filter(None, [f'{path}: {state.line()}', warning]))
+    elif state.state == KILLED and not problems:   # repaired: what it was, after the repair
+        warning = '; '.join(filter(None, [warning, f'{path}: {state.line()}']))
     if not count:
-        raise BagError(f'{path}: no servo/currents blocks in the session')
+        said = f' ({state.line()})' if state.state != WHOLE else ''
+        raise BagError(f'{path}: no servo/currents blocks in the session{said}')
     answering = {t: _answers(tables.get(t), stamps) for t in ANSWERS}
     signals = {name: _answer_column(tables.get(topic), answering[topic], path)
                for name, (topic, path) in SIGNALS.items()}
@@ -752,7 +954,7 @@ def read_session(path: str | Path, partial: bool = False) -> Session:
                    has_truth=truth is not None and truth.count > 0, arm_changes=arm_changes,
                    cuts=_cuts(tables.get('pmc/cuts')), warning=warning,
                    message_counts={t: recording.counts.get(t, 0) for t in recording.topics},
-                   ragged=ragged)
+                   ragged=ragged, wholeness=state)
 
 
 def applied_overrides(answered_pct: FloatArray, initial_pct: float) -> FloatArray:

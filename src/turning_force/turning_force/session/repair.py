@@ -5,9 +5,11 @@ cut short or damaged since: every complete chunk is read (:func:`scan_mcap`), it
 written to a new, closed MCAP file (summary, index, CRCs), and ``metadata.yaml`` is rebuilt with
 the real message counts and the session's custom data (the experiment, the parameters, the
 versions: from the old ``metadata.yaml``, which the recorder writes at its start, or from the
-MCAP's own rosbag2 record). The old file is kept beside it as ``<name>.damaged``. What was
-recovered and what was lost is recorded (``turning_force.repair_json``), and reading the
-session says so on every read.
+MCAP's own rosbag2 record). The old file is kept beside it as ``<name>.damaged``, the old
+``metadata.yaml`` as ``metadata.yaml.before_repair`` (``.2``, ``.3`` ... after the first
+repair: nothing is overwritten). Nothing outside the session folder is read or renamed: a
+``metadata.yaml`` naming a file elsewhere is refused. What was recovered and what was lost is
+recorded (``turning_force.repair_json``), and reading the session says so on every read.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import shutil
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +35,7 @@ from turning_force.session.bag import (
 )
 from turning_force.session.reader import (
     DECODE_ERRORS,
+    inside,
     read_metadata,
     read_recording,
     session_typestore,
@@ -54,6 +57,7 @@ class RepairResult:
     recorded: dict[str, int] | None
     damage: list[str]
     summary: str
+    kept: list[str] = field(default_factory=list)   # the files replaced, kept under these names
 
 
 def _old_metadata(path: Path) -> tuple[dict[str, str], dict[str, int] | None, str | None]:
@@ -69,14 +73,27 @@ def _old_metadata(path: Path) -> tuple[dict[str, str], dict[str, int] | None, st
 
 
 def _mcap_file(path: Path, named: str | None) -> Path:
-    if named is not None and (path / named).is_file():
-        return path / named
+    if named is not None:
+        mcap = inside(path, named, 'metadata.yaml names')   # never a file outside the folder
+        if mcap.is_file():
+            return mcap
     found = sorted(path.glob('*.mcap'))
     if len(found) != 1:
         raise BagError(f'{path}: {len(found)} .mcap files and no metadata.yaml naming one: '
                        'nothing to repair from' if not found else
                        f'{path}: {", ".join(f.name for f in found)}: which one is the session?')
     return found[0]
+
+
+def kept_name(path: Path, suffix: str) -> Path:
+    """Where a file about to be replaced is kept: ``NAME.SUFFIX`` beside it, or
+    ``NAME.SUFFIX.2``, ``.3`` ... where an earlier repair kept one (never overwritten)."""
+    keep = path.with_name(f'{path.name}.{suffix}')
+    n = 2
+    while keep.exists() or keep.is_symlink():
+        keep = path.with_name(f'{path.name}.{suffix}.{n}')
+        n += 1
+    return keep
 
 
 def _custom_from_mcap(scan: McapScan) -> dict[str, str]:
@@ -189,11 +206,18 @@ def repair(path: str | Path) -> RepairResult:
         for message in kept:
             writer.write(channels[message.channel_id][0], message.log_time, message.data)
         writer.close()
-        damaged = mcap.with_name(mcap.name + '.damaged')
-        mcap.replace(damaged)
+        # Every file replaced is kept beside it: the old .mcap, and metadata.yaml (however
+        # garbled: the only record of what it said).
+        kept_files = [kept_name(mcap, 'damaged')]
+        mcap.replace(kept_files[0])
+        metadata = path / 'metadata.yaml'
+        if metadata.exists() or metadata.is_symlink():
+            kept_files.append(kept_name(metadata, 'before_repair'))
+            metadata.replace(kept_files[-1])
         (fresh / f'{path.name}.mcap').replace(path / f'{path.name}.mcap')
-        (fresh / 'metadata.yaml').replace(path / 'metadata.yaml')
+        (fresh / 'metadata.yaml').replace(metadata)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    return RepairResult(path, True, dict(recovered), recorded, damage, summary)
+    return RepairResult(path, True, dict(recovered), recorded, damage, summary,
+                        [k.name for k in kept_files])
 

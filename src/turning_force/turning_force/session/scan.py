@@ -8,7 +8,8 @@ chunks without a word. :func:`scan_mcap` reads the data section record by record
 mcap's stream reader does, with the mcap library's record parsers, and
 
 - checks every record's length against the file and every chunk's CRC-32 where it has one
-  (our writer sets it; rosbags alone writes 0, "not computed");
+  (our writer sets it; rosbags alone writes 0, "not computed": such chunks are counted in
+  :attr:`McapScan.unverified`, their bytes cannot be checked);
 - decompresses a chunk only up to the size its record states, so that damaged sizes cannot make
   it allocate gigabytes;
 - when a record cannot be read, goes on at the next chunk it knows of (from the summary's chunk
@@ -105,6 +106,8 @@ class McapScan:
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     damage: list[str] = field(default_factory=list)
     counts: dict[int, int] = field(default_factory=dict)   # messages read, by channel id
+    chunks: int = 0       # chunk records read
+    unverified: int = 0   # of them, those without a CRC (0: "not computed"): unverifiable
 
 
 def _prepared(body: bytes) -> bytes:
@@ -427,6 +430,9 @@ class _Scanner:
 
     def chunk(self, pos: int, body: bytes, index: IntArray | None = None) -> None:
         self.read_chunks.add(pos)
+        self.out.chunks += 1
+        # start and end time, uncompressed size, then the CRC-32 of the records
+        self.out.unverified += body[24:28] == b'\0\0\0\0'
         if self.sink is not None:
             self.streamed_chunk(pos, body, index)
             self.release(pos, pos + 9 + len(body))
