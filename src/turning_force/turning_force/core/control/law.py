@@ -98,7 +98,7 @@ class ControllerBase(Settings):
     controller: str = setting('smc', 'Control law')
     reference_force_n: float = setting(500.0, 'Reference cutting force F_ref; below '
                                        'max_feed_force_n', 'N', low=0.0, low_open=True,
-                                       high=1e5, dynamic=True)
+                                       high=1e5, dynamic=True, cite='Park 1998, Eq. 9')
     control_period_s: float = shared.control_period_s()
     spindle_speed_rpm: float = shared.spindle_speed_rpm()
     programmed_feed_mm_rev: float = shared.programmed_feed_mm_rev()
@@ -116,25 +116,28 @@ class ControllerBase(Settings):
                                           low=0.0, high=255.0)
     model_servo_time_constant_s: float = setting(0.17, 'Servo time constant tau_s the '
                                                  'controllers assume (Park Eq. 2)', 's', low=0.0,
-                                                 low_open=True, high=10.0)
+                                                 low_open=True, high=10.0, cite='Park 1998, Eq. 2')
     model_servo_model: str = setting('first_order', 'Servo model the predictor assumes: first '
                                      'order (tau_s, Park Eq. 2) or second order (w_n, damping, '
                                      'Hwang & Chen Eq. 1)', choices=('first_order',
                                                                      'second_order'))
     model_servo_natural_freq_rad_s: float = setting(60.0, 'Second-order servo natural frequency '
                                                     'the predictor assumes', 'rad/s', low=0.0,
-                                                    low_open=True, high=1e4)
+                                                    low_open=True, high=1e4,
+                                                    cite='Hwang & Chen 1990, Eq. 1')
     model_servo_damping: float = setting(0.7, 'Second-order servo damping the predictor assumes',
-                                         low=0.0, low_open=True, high=10.0)
+                                         low=0.0, low_open=True, high=10.0,
+                                         unit='-', cite='Hwang & Chen 1990, Eq. 1')
     model_dead_time_s: float = setting(0.0, 'PMC dead time the predictor assumes (Kim: 0.08 s '
                                        'on a FANUC); from `turning-force identify`', 's', low=0.0,
-                                       high=2.0)
+                                       high=2.0, cite='Kim, Eqs. 1-2')
     model_cutting_time_constant_s: float = setting(0.05, 'Process time constant tau_c the SMC '
                                                    'assumes (Park Eq. 1)', 's', low=0.0,
-                                                   low_open=True, high=10.0)
+                                                   low_open=True, high=10.0,
+                                                   cite='Park 1998, Eq. 1')
     model_cutting_exponent: float = setting(1.0, 'Feed exponent g of the force the laws assume, '
                                             'F = K_s d f^g (Kienzle; 1: Park)', low=0.1,
-                                            high=2.0)
+                                            high=2.0, unit='-', cite='Hwang & Chen 1990, Eq. 3')
 
     def check(self) -> None:
         super().check()
