@@ -19,6 +19,7 @@ So that a session survives what a shop does to it:
 from __future__ import annotations
 
 import contextlib
+import datetime
 import importlib.util
 import json
 import os
@@ -53,11 +54,14 @@ from rosbags.typesys.store import Typestore
 from turning_force.core.errors import ConfigError, TurningForceError
 
 __all__ = ['CUSTOM_EXPERIMENT', 'CUSTOM_PARAMETERS', 'CUSTOM_RECORDING', 'CUSTOM_REPAIR',
-           'CUSTOM_VERSIONS', 'BagError', 'SessionWriter', 'software_versions', 'typestore']
+           'CUSTOM_STARTED', 'CUSTOM_VERSIONS', 'BagError', 'SessionWriter', 'software_versions',
+           'typestore']
 
 CUSTOM_EXPERIMENT = 'turning_force.experiment_yaml'
 CUSTOM_PARAMETERS = 'turning_force.parameters_json'
 CUSTOM_VERSIONS = 'turning_force.versions_json'
+# When the recording began, UTC, ISO 8601 (a lock-step session's stamps are simulated time).
+CUSTOM_STARTED = 'turning_force.started_utc'
 # Present in the metadata.yaml of a session still being recorded (or never closed): its message
 # counts are not final.
 CUSTOM_RECORDING = 'turning_force.recording'
@@ -253,6 +257,8 @@ class SessionWriter:
         self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         self._writer.set_custom_data(CUSTOM_RECORDING, 'open: the message counts are written '
                                      'when the session closes')
+        self._writer.set_custom_data(CUSTOM_STARTED, datetime.datetime.now(datetime.UTC)
+                                     .isoformat(timespec='seconds'))
         self._connections: dict[str, Any] = {}
         self._flush_period_s = flush_period_s
         self._last_flush = time.monotonic()
