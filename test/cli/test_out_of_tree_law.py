@@ -106,3 +106,25 @@ def test_without_the_distribution_the_law_is_unknown_and_says_which_are(fig8):
                          capture_output=True, text=True, timeout=300, check=False)
     assert run.returncode != 0
     assert "force_controller.controller = 'relay': expected one of smc," in run.stderr
+
+
+DESCRIBE = """
+import sys
+from turning_force import cli
+from turning_force.core.catalog import missing_metadata, parameters_markdown
+sys.exit(cli.main(sys.argv[1:]) or len(missing_metadata()) + 10 * ('relay_band_n' in
+         parameters_markdown()))
+"""
+
+
+def test_describe_explains_an_installed_law_and_the_docs_keep_to_ours(site):
+    env = {**os.environ, 'PYTHONPATH': os.pathsep.join(
+        filter(None, [str(site), os.environ.get('PYTHONPATH')]))}
+    run = subprocess.run([sys.executable, '-c', DESCRIBE, 'describe',
+                          'force_controller.relay_band_n'], env=env, capture_output=True,
+                         text=True, timeout=300, check=False)
+    # Exit 0: the law's settings carry text, unit and range (missing_metadata() is empty),
+    # and docs/parameters.md, which documents our laws, does not take them in.
+    assert run.returncode == 0, run.stdout + run.stderr[-3000:]
+    assert 'unit:     N' in run.stdout and 'range:    [0, 100000] N' in run.stdout
+    assert 'read by the relay law' in run.stdout

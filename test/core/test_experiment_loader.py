@@ -55,7 +55,8 @@ def section(node: str, body: str) -> str:
     (section('lathe_sim', f'    seed: {2**63}\n'),
      f'lathe_sim.seed = {2**63}: outside the 64-bit range of a ROS integer parameter'),
     (section('lathe_sim', f'    seed: {10**400}\n'), 'lathe_sim.seed = 1000'),
-    (section('lathe_sim', '    seed: -1\n'), r'lathe_sim.seed = -1: outside [0, inf)'),
+    (section('lathe_sim', '    seed: -1\n'),
+     r'lathe_sim.seed = -1: outside [0, 9223372036854775807]'),
     (section('lathe_sim', f'    spindle_speed_rpm: {10**400}\n'),
      'lathe_sim.spindle_speed_rpm = 1000'),
     # The name becomes a file name under bags/: nothing that leaves it.
@@ -69,7 +70,7 @@ def section(node: str, body: str) -> str:
      'session_recorder.flush_periodd_s = 1.0: unknown parameter; known: capture_parameters, '
      'experiment_file, flush_period_s, output_dir'),
     (section('session_recorder', '    flush_period_s: 0.0\n'),
-     r'session_recorder.flush_period_s = 0.0: outside (0, inf) s'),
+     r'session_recorder.flush_period_s = 0.0: outside (0, 3600] s'),
     # Text PyYAML's constructors choke on below the YAMLError family.
     (section('lathe_sim', '    seed: !!int abc\n'), 'not valid YAML: ValueError'),
     (section('experiment', '    description: 2024-13-45\n'), 'not valid YAML: ValueError'),

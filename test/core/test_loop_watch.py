@@ -15,6 +15,7 @@ from test_kernel import FIG8
 
 from turning_force.core.control import make_controller
 from turning_force.core.control.law import ControllerBase
+from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import load_experiment
 from turning_force.core.kernel.simulate import SimulationResult, simulate
 from turning_force.core.metrics import MetricSettings, compute_metrics
@@ -130,3 +131,41 @@ def test_no_alarm_on_a_loop_that_does_not_oscillate(sets):
     result = run(*sets)
     assert oscillation_onset_s(result) is None
     assert result.metrics['oscillation_alarms'] == 0.0
+
+
+def test_an_entry_feed_that_would_hold_the_whole_cut_is_refused():
+    # A 50 N reference (aluminium, Park Fig. 13) below the 100 N engagement threshold: the
+    # tool would never count as in the cut, and the entry feed would cap the whole cut.
+    with pytest.raises(ConfigError, match=r'engage_force_n = 100\.0: not below'):
+        load_experiment(FIG8).with_sets(['force_controller.reference_force_n=50.0',
+                                         PRODUCT_ENTRY])
+    lowered = load_experiment(FIG8).with_sets([
+        'force_controller.reference_force_n=50.0', PRODUCT_ENTRY,
+        'pmc_bridge.engage_force_n=25.0', 'pmc_bridge.exit_force_n=15.0'])
+    assert lowered.bridge.engage_force_n == 25.0
+
+
+def test_the_graph_says_the_loop_oscillates_on_diagnostics(tmp_path):
+    # The node graph in lock-step on the 100 ms dead-time machine: the controller node puts
+    # the alarm, with what the reaction did, on /diagnostics, and the session records it.
+    from rosbags.highlevel import AnyReader
+
+    from turning_force.commands.run import run_lockstep
+    from turning_force.session.bag import typestore
+
+    experiment = load_experiment(FIG8).with_sets(['lathe_sim.pmc_dead_time_s=0.1',
+                                                  PRODUCT_QUANTISER, PRODUCT_REACTION,
+                                                  'experiment.duration_s=3.0'])
+    core_alarm = first_alarm_s(simulate(experiment))
+    assert core_alarm is not None and core_alarm < 2.0
+    run_lockstep(experiment, tmp_path / 'session')
+    warnings = []
+    with AnyReader([tmp_path / 'session'], default_typestore=typestore()) as reader:
+        topic = [c for c in reader.connections if c.topic == '/diagnostics']
+        for connection, _, raw in reader.messages(connections=topic):
+            for status in reader.deserialize(raw, connection.msgtype).status:
+                if status.name.endswith('force_controller') and 'oscillates' in status.message:
+                    warnings.append(status)
+    assert warnings, 'no oscillation alarm on /diagnostics'
+    assert 'detune' in warnings[0].message
+    assert any(v.key == 'oscillating' and v.value == 'True' for v in warnings[0].values)

@@ -353,7 +353,7 @@ def test_the_largest_seed_a_file_may_give_is_a_ros_parameter(context):
 
 @pytest.mark.parametrize(('name', 'value', 'message'), [
     ('flush_periodd_s', 1.0, 'flush_periodd_s: no node of turning_force declares'),
-    ('flush_period_s', 0.0, r'session_recorder.flush_period_s = 0.0: outside \(0, inf\) s'),
+    ('flush_period_s', 0.0, r'session_recorder.flush_period_s = 0.0: outside \(0, 3600\] s'),
     ('capture_parameters', 'yes', r"session_recorder.capture_parameters: .*'STRING'"),
 ])
 def test_the_recorder_refuses_a_bad_or_mistyped_parameter(context, tmp_path, name, value,

@@ -759,17 +759,38 @@ def _print_identification(ident: Any, ksd_min: float, ksd_max: float, margin: fl
 
 
 def _reproduce(args: argparse.Namespace) -> int:
-    from turning_force.commands.papers import format_table, reproduce
+    from turning_force.commands.papers import ROWS, format_table, regressions, reproduce
 
-    results = reproduce(Path(args.dir))
+    rows = [r for r in ROWS if not args.experiment or r.experiment in args.experiment]
+    if not rows:
+        raise TurningForceError(f'--experiment {" ".join(args.experiment)}: no row runs it; '
+                                f'the rows run {", ".join(sorted({r.experiment for r in ROWS}))}')
+    results = reproduce(Path(args.dir), rows, args.set)
     if args.json:
-        print(json.dumps({'rows': [{'scenario': r.row.label, 'experiment': r.row.experiment,
-                                    'sets': list(r.row.sets), 'paper': r.row.paper,
-                                    'allowed_error_n': r.allowed_error_n,
-                                    'settled_forces_n': list(r.settled_forces_n),
-                                    'metrics': r.metrics} for r in results]}))
+        print(json.dumps({'sets': list(args.set), 'rows': [{
+            'scenario': r.row.label, 'experiment': r.row.experiment, 'sets': list(r.row.sets),
+            'paper': dataclasses.asdict(r.row.paper) if r.row.paper else None,
+            'ours_n': r.ours_n, 'verdict': r.verdict[0], 'reason': r.verdict[1],
+            'expected': r.row.expect, 'ours_from': 'simulated',
+            'allowed_error_n': r.allowed_error_n, 'settled_forces_n': list(r.settled_forces_n),
+            'metrics': r.metrics} for r in results]}))
     else:
         print(format_table(results))
+    failed = regressions(results)
+    for r in failed:
+        print(f'turning-force: {r.row.label} ({r.row.experiment}) was {r.row.expect}, is worse '
+              f'now: {r.verdict[1]}', file=sys.stderr)
+    return 1 if failed else 0
+
+
+def _describe(args: argparse.Namespace) -> int:
+    from turning_force.core.catalog import describe, parameters_markdown
+
+    if args.markdown:
+        sys.stdout.write(parameters_markdown())
+        return 0
+    directory = Path(args.dir)
+    print(describe(args.target, directory if directory.is_dir() else None))
     return 0
 
 
@@ -936,8 +957,22 @@ def build_parser() -> argparse.ArgumentParser:
 
     papers = commands.add_parser('reproduce', help="the papers' scenarios beside their numbers")
     papers.add_argument('--dir', default='config/experiments', help='experiment files')
+    papers.add_argument('--experiment', action='append', default=[], metavar='NAME',
+                        help='only the rows that run this experiment (repeatable)')
+    add_set(papers)
     papers.add_argument('--json', action='store_true', help='print one JSON object')
     papers.set_defaults(handler=_reproduce)
+
+    explain = commands.add_parser('describe', help='what a parameter means: unit, range, '
+                                  'default, paper and equation, which file sets it')
+    explain.add_argument('target', nargs='?', metavar='NODE | NODE.PARAM',
+                         help='a node (its parameters) or one parameter (in full); none: the '
+                         'nodes')
+    explain.add_argument('--dir', default='config/experiments',
+                         help='experiment files searched for the ones that set NODE.PARAM')
+    explain.add_argument('--markdown', action='store_true',
+                         help='every parameter as docs/parameters.md has them')
+    explain.set_defaults(handler=_describe)
 
     check = commands.add_parser('pmc-check', help='step the PMC module through every override '
                                 'level and read each back')

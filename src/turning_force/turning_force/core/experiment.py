@@ -55,13 +55,14 @@ class RunSettings(Settings):
     paper_figure: str = setting('', 'The paper figure it reproduces, if any')
     paper_steady_mean_abs_error_n: float = setting(
         0.0, "The paper's average tracking error for this figure; 0: the paper gives none", 'N',
-        low=0.0)
+        low=0.0, high=1e5)
     duration_s: float = setting(12.0, 'Simulated time', 's', low=0.0, low_open=True, high=3600.0)
     control_period_s: float = shared.control_period_s()
     settle_window_s: float = setting(1.0, 'Left out of the steady metrics after each change', 's',
-                                     low=0.0)
+                                     low=0.0, high=60.0)
     allowed_error_n: float = setting(10.0, 'Allowed tracking error: the band of the settling '
-                                     'time and of the figures', 'N', low=0.0, low_open=True)
+                                     'time and of the figures', 'N', low=0.0, low_open=True,
+                                     high=1e5)
     arm_bridge: bool = setting(True, 'The run arms the PMC bridge; false keeps it disarmed, the '
                                'machine at the programmed feed (an air cut for calibration). '
                                'pmc_bridge.armed, where a file gives it, says the same')
@@ -85,7 +86,7 @@ class RecorderSettings(Settings):
                               'bags/session_<time>')
     experiment_file: str = setting('', 'Experiment parameters file to embed in the session')
     flush_period_s: float = setting(1.0, 'Longest wall time between writes to the disk', 's',
-                                    low=0.0, low_open=True)
+                                    low=0.0, low_open=True, high=3600.0)
     capture_parameters: bool = setting(True, 'Ask the graph nodes for their parameters and '
                                        'embed them')
 
@@ -281,3 +282,11 @@ def _check_consistent(e: Experiment) -> None:
             f'force_controller.reference_force_n = {e.controller.reference_force_n!r}: not below '
             f'pmc_bridge.overload_force_n = {e.bridge.overload_force_n!r}: the regulated force '
             'would hold the feed')
+    bridge = e.bridge
+    if bridge.air_cut_override_pct > 0 and bridge.engage_force_n >= e.controller.reference_force_n:
+        raise ConfigError(
+            f'pmc_bridge.engage_force_n = {e.bridge.engage_force_n!r}: not below '
+            f'force_controller.reference_force_n = {e.controller.reference_force_n!r}: the tool '
+            'would never count as in the cut, and the entry feed (air_cut_override_pct = '
+            f'{e.bridge.air_cut_override_pct!r} %) would hold the whole cut; lower '
+            'engage_force_n and exit_force_n, or set air_cut_override_pct to 0')

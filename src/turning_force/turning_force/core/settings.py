@@ -17,12 +17,15 @@ from typing import Any, ClassVar, Self
 
 from turning_force.core.errors import ConfigError
 
-__all__ = ['INT64_MAX', 'INT64_MIN', 'Settings', 'Spec', 'setting']
+__all__ = ['DIMENSIONLESS', 'INT64_MAX', 'INT64_MIN', 'Settings', 'Spec', 'setting']
 
 Scalar = bool | int | float | str
 
 # What a ROS 2 integer parameter holds (int64): a larger value kills the node at declaration.
 INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+
+# The unit of a number without one (a ratio, a damping, a count), written as engineers do.
+DIMENSIONLESS = '-'
 
 
 @dataclass(frozen=True)
@@ -37,14 +40,25 @@ class Spec:
     high_open: bool = False
     choices: tuple[str, ...] = ()
     dynamic: bool = False
+    cite: str = ''
+
+    @property
+    def unit_text(self) -> str:
+        """The unit after a number (`` N``), nothing for a dimensionless one."""
+        return f' {self.unit}' if self.unit and self.unit != DIMENSIONLESS else ''
 
     def range_text(self) -> str:
         """The allowed range as an engineer writes it, e.g. ``(0, 1]``."""
-        low = '-inf' if self.low is None else f'{self.low:g}'
-        high = 'inf' if self.high is None else f'{self.high:g}'
+        low = '-inf' if self.low is None else _number(self.low)
+        high = 'inf' if self.high is None else _number(self.high)
         return f'{"(" if self.low_open or self.low is None else "["}{low}, {high}' + (
             ')' if self.high_open or self.high is None else ']'
         )
+
+
+def _number(value: float) -> str:
+    """A bound as written: an integer in full (the largest seed), a float briefly."""
+    return str(value) if isinstance(value, int) else f'{value:g}'
 
 
 def setting(
@@ -58,13 +72,16 @@ def setting(
     high_open: bool = False,
     choices: tuple[str, ...] = (),
     dynamic: bool = False,
+    cite: str = '',
 ) -> Any:
     """Declare a settings field: default, description, unit, range and run-time mutability.
 
-    ``dynamic`` marks values that may change while cutting (reference force, gains); the others
-    are fixed for a session (read-only parameters in the node layer).
+    ``unit`` is :data:`DIMENSIONLESS` for a number without one. ``dynamic`` marks values that
+    may change while cutting (reference force, gains); the others are fixed for a session
+    (read-only parameters in the node layer). ``cite``: the paper and equation the setting
+    comes from (``'Park 1998, Eq. 10'``), where one does.
     """
-    spec = Spec(description, unit, low, high, low_open, high_open, choices, dynamic)
+    spec = Spec(description, unit, low, high, low_open, high_open, choices, dynamic, cite)
     if isinstance(default, list):
         default = tuple(default)
     return field(default=default, metadata={'spec': spec})
@@ -212,5 +229,4 @@ def _check_value(section: str, name: str, value: Any, kind: type, spec: Spec) ->
             below = spec.low is not None and (v <= spec.low if spec.low_open else v < spec.low)
             above = spec.high is not None and (v >= spec.high if spec.high_open else v > spec.high)
             if below or above:
-                unit = f' {spec.unit}' if spec.unit else ''
-                raise ConfigError(f'{where}: outside {spec.range_text()}{unit}')
+                raise ConfigError(f'{where}: outside {spec.range_text()}{spec.unit_text}')

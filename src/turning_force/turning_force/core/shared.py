@@ -24,7 +24,7 @@ __all__ = [
 def control_period_s() -> Any:
     """One block of currents, one force estimate, one feed command (Park: 10 ms)."""
     return setting(0.01, 'Control period: one block of currents, one estimate, one command (Park: '
-                   '10 ms)', 's', low=1e-4, high=1.0)
+                   '10 ms)', 's', low=1e-4, high=1.0, cite='Park 1998, Sec. 2.3')
 
 
 def spindle_speed_rpm() -> Any:

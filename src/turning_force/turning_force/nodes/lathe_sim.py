@@ -29,7 +29,6 @@ from collections.abc import Sequence
 from typing import Any
 
 from geometry_msgs.msg import WrenchStamped
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
@@ -38,6 +37,7 @@ from std_msgs.msg import Float64
 from turning_force_msgs.msg import CuttingState, FeedOverride, MachineInputs, ServoCurrents
 
 from turning_force.core import kernel
+from turning_force.core.catalog import LatheSimNodeSettings
 from turning_force.core.errors import ConfigError, TurningForceError
 from turning_force.core.plant.lathe import LathePlant
 from turning_force.core.plant.settings import Dynamometer, PlantBlock, PlantSettings
@@ -51,7 +51,7 @@ from turning_force.nodes.convert import (
     stamp_to_ns,
 )
 from turning_force.nodes.diagnostics import AnswerLatency, Diagnostics
-from turning_force.nodes.parameters import SettingsParameters
+from turning_force.nodes.parameters import SettingsParameters, declare
 from turning_force.nodes.spin import run_nodes, timer_callback
 from turning_force.nodes.spindle import SPINDLE_SPEED_TOPIC
 
@@ -70,15 +70,8 @@ class LatheSimNode(Node):
     def __init__(self, *, lockstep: bool = False, **kwargs: Any) -> None:
         super().__init__('lathe_sim', **kwargs)
         kernel.load()   # the compiled code, before the first block (compiled on a cold cache)
-        self.declare_parameter('publish_clock', False)
-        self._publish_clock = bool(self.get_parameter('publish_clock').value)
-        self.declare_parameter('latency_window_s', 10.0, ParameterDescriptor(
-            name='latency_window_s', read_only=True, description='Sliding window of the '
-            'block-to-override latency statistics on /diagnostics [s] (wall clock only)'))
-        window_s = float(self.get_parameter('latency_window_s').value)
-        if not window_s > 0:
-            raise ConfigError(f'{self.get_fully_qualified_name()}: latency_window_s = '
-                              f'{window_s!r}: expected a duration > 0 s')
+        self._publish_clock = bool(declare(self, LatheSimNodeSettings, 'publish_clock'))
+        window_s = float(declare(self, LatheSimNodeSettings, 'latency_window_s'))
         self.parameters = SettingsParameters(self, PlantSettings)
         settings = self.parameters.current
         self._table = get_table(settings.override_table)
@@ -128,15 +121,8 @@ class LatheSimNode(Node):
 
     def _coil_reader(self, override_table: str) -> Any:
         """The PMC's input image on Modbus/TCP, when ``backend`` is ``modbus_tcp``."""
-        for name, text in (('machine_file', 'Machine file (shared with pmc_bridge)'),
-                           ('backend', 'Where the override is read: simulated (the '
-                            'pmc/feed_override topic) or modbus_tcp (the coils of the '
-                            "machine file's module)")):
-            self.declare_parameter(name, 'simulated' if name == 'backend' else '',
-                                   ParameterDescriptor(name=name, description=text,
-                                                       read_only=True))
-        path = str(self.get_parameter('machine_file').value)
-        backend = str(self.get_parameter('backend').value)
+        path = str(declare(self, LatheSimNodeSettings, 'machine_file'))
+        backend = str(declare(self, LatheSimNodeSettings, 'backend'))
         if backend == 'simulated':
             return None
         where = self.get_fully_qualified_name()

@@ -22,18 +22,14 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from turning_force.core.catalog import NODES
 from turning_force.core.errors import ConfigError
-from turning_force.core.experiment import SETTINGS_OF
 from turning_force.core.settings import Settings, Spec
 
-__all__ = ['NODE_PARAMETERS', 'SettingsParameters', 'check_overrides', 'descriptor']
+__all__ = ['ROS_PARAMETERS', 'SettingsParameters', 'check_overrides', 'declare', 'descriptor']
 
-# Parameters the nodes declare besides their settings classes' fields, and ROS's own.
-NODE_PARAMETERS = frozenset({
-    'publish_clock', 'output_dir', 'experiment_file', 'flush_period_s',   # ours
-    'capture_parameters', 'autostart', 'latency_window_s',
-    'use_sim_time', 'start_type_description_service',                     # rclpy's
-})
+# rclpy's own parameters, which every node has.
+ROS_PARAMETERS = frozenset({'use_sim_time', 'start_type_description_service'})
 
 
 def check_overrides(node: Node, own: Iterable[str] = ()) -> None:
@@ -42,17 +38,33 @@ def check_overrides(node: Node, own: Iterable[str] = ()) -> None:
     rclpy ignores values given for undeclared parameters, so ``overload_force_nn: 900`` in a
     params file would silently leave the default limit in force. A name that another node
     declares is fine (``/**`` gives every node the whole shared section); ``own`` adds the
-    names of a node whose settings are not part of an experiment (``servo_daq``).
+    names of a node's own settings.
     """
     # rclpy keeps the overrides only in this attribute; there is no public accessor.
     overrides: dict[str, Any] = getattr(node, '_parameter_overrides', {})
-    known = set(NODE_PARAMETERS) | set(own)
-    for kind in SETTINGS_OF.values():
-        known.update(kind.fields())
+    known = set(ROS_PARAMETERS) | set(own)
+    for entry in NODES:
+        known.update(entry.fields())
     unknown = sorted(n for n in overrides if n not in known and not n.startswith('qos_overrides.'))
     if unknown:
         raise ConfigError(f'{node.get_fully_qualified_name()}: {", ".join(unknown)}: no node of '
                           'turning_force declares such a parameter (a typo?)')
+
+
+def declare(node: Node, kind: type[Settings], name: str) -> Any:
+    """Declare one field of ``kind`` as a parameter of ``node`` (a parameter of how the node
+    runs, read once at start: :mod:`turning_force.core.catalog`) and return its value, checked
+    as the settings check it."""
+    scalar, spec = kind.fields()[name]
+    default = getattr(kind(), name)
+    array = kind._is_array(name)
+    node.declare_parameter(name, list(default) if array else default,
+                           descriptor(name, scalar, spec, array))
+    value = node.get_parameter(name).value
+    try:
+        return getattr(kind.from_params({name: value}), name)
+    except ConfigError as exc:
+        raise ConfigError(f'{node.get_fully_qualified_name()}: {exc}') from exc
 
 S = TypeVar('S', bound=Settings)
 
@@ -65,6 +77,8 @@ def descriptor(name: str, kind: type, spec: Spec, array: bool) -> ParameterDescr
         text += f'; range {spec.range_text()}'
     if spec.choices:
         text += f'; one of {", ".join(spec.choices)}'
+    if spec.cite:
+        text += f'; {spec.cite}'
     d = ParameterDescriptor(name=name, description=text, read_only=not spec.dynamic)
     low, high = spec.low, spec.high
     if low is not None and high is not None and not array:

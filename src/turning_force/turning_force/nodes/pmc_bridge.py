@@ -30,7 +30,6 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, Header
@@ -45,6 +44,7 @@ from turning_force_msgs.msg import (
 )
 
 from turning_force.core import kernel
+from turning_force.core.catalog import BridgeNodeSettings
 from turning_force.core.errors import ConfigError, TurningForceError
 from turning_force.core.kernel.chain import check_taught_reference, command_for_would_act
 from turning_force.core.pmc.gate import OverrideGate
@@ -61,7 +61,7 @@ from turning_force.nodes.convert import (
 )
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
-from turning_force.nodes.parameters import SettingsParameters
+from turning_force.nodes.parameters import SettingsParameters, declare
 from turning_force.nodes.spin import NodeTime, run_nodes, timer_callback
 from turning_force.nodes.spindle import SpindleSpeedInput
 
@@ -111,9 +111,7 @@ class PmcBridgeNode(LifecycleNode):
         self.io_fault = ''
         self.configure_error = ''
         self._active = False
-        self.declare_parameter('autostart', True, ParameterDescriptor(
-            name='autostart', read_only=True, description='Configure and activate at start '
-            '(false: wait for ~/change_state, as ros2 lifecycle set drives it)'))
+        declare(self, BridgeNodeSettings, 'autostart')
         self.parameters = SettingsParameters(self, BridgeSettings, self._reconfigure)
         settings = self.parameters.current
         self.gate = OverrideGate(settings)

@@ -24,6 +24,7 @@ So that a session survives what a shop does to it:
 from __future__ import annotations
 
 import contextlib
+import datetime
 import importlib.util
 import json
 import os
@@ -66,14 +67,15 @@ from rosbags.typesys.store import Typestore
 from turning_force.core.errors import ConfigError, TurningForceError
 
 __all__ = ['CUSTOM_END', 'CUSTOM_EXPERIMENT', 'CUSTOM_PARAMETERS', 'CUSTOM_PLANNED',
-           'CUSTOM_RECORDING', 'CUSTOM_REPAIR', 'CUSTOM_VERSIONS', 'SETTINGS_TOPIC',
-           'SETTINGS_TYPE', 'BagError', 'SessionWriter', 'settings_message', 'settings_text',
-           'software_versions',
-           'stopped_by', 'typestore']
+           'CUSTOM_RECORDING', 'CUSTOM_REPAIR', 'CUSTOM_STARTED', 'CUSTOM_VERSIONS',
+           'SETTINGS_TOPIC', 'SETTINGS_TYPE', 'BagError', 'SessionWriter', 'settings_message',
+           'settings_text', 'software_versions', 'stopped_by', 'typestore']
 
 CUSTOM_EXPERIMENT = 'turning_force.experiment_yaml'
 CUSTOM_PARAMETERS = 'turning_force.parameters_json'
 CUSTOM_VERSIONS = 'turning_force.versions_json'
+# When the recording began, UTC, ISO 8601 (a lock-step session's stamps are simulated time).
+CUSTOM_STARTED = 'turning_force.started_utc'
 # Present in the metadata.yaml of a session still being recorded (or never closed): its message
 # counts are not final.
 CUSTOM_RECORDING = 'turning_force.recording'
@@ -299,6 +301,9 @@ class SessionWriter:
                                      'when the session closes')
         for key, value in (custom_data or {}).items():   # in the first metadata.yaml already
             self._writer.set_custom_data(key, value)
+        if CUSTOM_STARTED not in (custom_data or {}):   # a rewrite keeps the session's own
+            self._writer.set_custom_data(CUSTOM_STARTED, datetime.datetime.now(datetime.UTC)
+                                         .isoformat(timespec='seconds'))
         self._connections: dict[str, Any] = {}
         self._flush_period_s = flush_period_s
         self._last_flush = time.monotonic()

@@ -600,6 +600,8 @@ def _experiment(path: Path, custom: dict[str, str]) -> Experiment | None:
             for (section, key), value in BEFORE_THE_SETTING.items():
                 if section in recorded and key not in recorded[section]:
                     recorded[section][key] = value
+            if 'experiment' not in recorded and CUSTOM_EXPERIMENT in custom:
+                recorded['experiment'] = _run_section(path, custom[CUSTOM_EXPERIMENT])
             return build_experiment(f'{path} (recorded parameters)', recorded)
         if CUSTOM_EXPERIMENT in custom:
             return parse_experiment(custom[CUSTOM_EXPERIMENT], f'{path} (recorded experiment)')
@@ -607,6 +609,17 @@ def _experiment(path: Path, custom: dict[str, str]) -> Experiment | None:
         raise BagError(f'{path}: the recorded settings are not a valid experiment: {exc}') \
             from exc
     return None
+
+
+def _run_section(path: Path, text: str) -> dict[str, Any]:
+    """The run's own settings (its name, the band, the settle window) from the experiment file
+    a recorder embeds: no node declares them, so the parameters it captured from the nodes do
+    not hold them. Empty (the defaults) where the file is not a valid experiment: the captured
+    parameters are what ran."""
+    try:
+        return parse_experiment(text, f'{path} (recorded experiment)').run.to_params()
+    except (ValueError, ConfigError):
+        return {}
 
 
 def _check_types(path: Path, topics: dict[str, TopicInfo]) -> None:

@@ -8,11 +8,14 @@ recording ended is shown from the recorded signals, marked open."""
 from __future__ import annotations
 
 import base64
+import datetime
 import html
 import io
 import math
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -21,15 +24,18 @@ matplotlib.use('Agg')  # files only; no display is needed or wanted
 import matplotlib.pyplot as plt
 import numpy as np
 import numpy.typing as npt
+from matplotlib.figure import Figure
 from matplotlib.transforms import Bbox
 
 from turning_force.core.metrics import METRIC_NAMES, OPTIONAL_METRICS
 from turning_force.core.pmc.shopfloor import CutRecord
+from turning_force.session.bag import CUSTOM_STARTED
 from turning_force.session.reader import Session
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ['CUT_COLUMNS', 'cut_table', 'figure_png', 'write_html_report', 'write_report']
+__all__ = ['CUT_COLUMNS', 'ReportFacts', 'cut_table', 'figure', 'figure_png', 'report_facts',
+           'write_html_report', 'write_report']
 
 # The cut log's columns: heading, unit, and the text of a record's value.
 CUT_COLUMNS: tuple[tuple[str, str, str], ...] = (
@@ -41,7 +47,66 @@ CUT_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ('lowest override', '%', 'min_override_pct'),
     ('overloads', '', 'overload_events'),
     ('reachable', '', 'reachable_fraction'),
+    ('mean force', 'N', 'mean_force_n'),
+    ('tool', '', 'tool'),
 )
+
+# Stamps after this are the wall clock (2001 on), not a simulation's time from 0 [s].
+WALL_CLOCK_AFTER_S = 1e9
+
+
+@dataclass(frozen=True)
+class ReportFacts:
+    """What a report says of its session besides the signals: what ran, where, when, and the
+    band it was held to.
+
+    ``start_s`` is the session's time 0 in its stamps' clock (the first block's first sample):
+    a report's times are seconds from it, a wall-clock session's too. ``band_n`` is the allowed
+    error the session's own settings give (``experiment.allowed_error_n``), ``band_from`` says
+    where it came from."""
+
+    experiment: str
+    machine: str
+    started: datetime.datetime | None
+    start_s: float
+    band_n: float
+    band_from: str
+    parameters: dict[str, dict[str, Any]]
+    versions: dict[str, str]
+
+    @property
+    def date_text(self) -> str:
+        return (self.started.strftime('%Y-%m-%d %H:%M UTC') if self.started is not None
+                else 'date not recorded')
+
+    @property
+    def title(self) -> str:
+        return f'{self.experiment} on {self.machine}, {self.date_text}'
+
+
+def report_facts(session: Session) -> ReportFacts:
+    """The facts of ``session`` a report prints (:class:`ReportFacts`)."""
+    experiment = session.experiment
+    starts = session.block_starts_s
+    start_s = float(starts[0]) if starts.size else 0.0
+    started: datetime.datetime | None = None
+    if CUSTOM_STARTED in session.custom_data:
+        started = datetime.datetime.fromisoformat(session.custom_data[CUSTOM_STARTED])
+    elif start_s > WALL_CLOCK_AFTER_S:
+        started = datetime.datetime.fromtimestamp(start_s, datetime.UTC)
+    lathe = 'simulated lathe' if session.has_truth else 'lathe'
+    if experiment is None:
+        return ReportFacts(session.path.name, lathe, started, start_s, 0.0, 'no settings '
+                           'recorded: no band', {}, session.versions)
+    bridge = experiment.bridge
+    machine = (f'{Path(bridge.machine_file).stem} ({lathe}, {bridge.override_table})'
+               if bridge.machine_file else f'{lathe}, {bridge.override_table} override')
+    given = 'allowed_error_n' in experiment.sections.get('experiment', {})
+    return ReportFacts(experiment.run.name, machine, started, start_s,
+                       experiment.run.allowed_error_n,
+                       'experiment.allowed_error_n' if given else
+                       'the default experiment.allowed_error_n: the session does not set it',
+                       experiment.resolved_params(), session.versions)
 
 
 def cut_table(session: Session) -> list[CutRecord]:
@@ -77,17 +142,20 @@ def cut_table(session: Session) -> list[CutRecord]:
     return cuts
 
 
-def _cut_cells(record: CutRecord) -> list[str]:
+def _cut_cells(record: CutRecord, start_s: float) -> list[str]:
+    """A cut's row as text, its start in seconds from the session's ``start_s``."""
     cells = []
     for _, unit, name in CUT_COLUMNS:
         value = getattr(record, name)
+        if name == 'start_s':
+            value -= start_s
         if name == 'index':
             cells.append(f'{value}' + ('' if record.complete else ' (open)')
                          + (' learned' if record.learned else '')
                          + (' BREAKAGE' if record.breakage else ''))
         elif name == 'reachable_fraction':
             cells.append('-' if math.isnan(value) else f'{value:.0%}')
-        elif isinstance(value, int):
+        elif isinstance(value, int | str):
             cells.append(f'{value}')
         else:
             cells.append(f'{value:.{0 if unit in ("N", "%") else 2}f}')
@@ -182,14 +250,38 @@ def write_report(session: Session, metrics: dict[str, float], out: Path) -> Path
 
 
 def figure_png(session: Session, metrics: dict[str, float]) -> bytes:
-    """The figure of a session as PNG bytes."""
-    s, t = session.signals, session.t_s
+    """The figure of a session as PNG bytes; the PNG's Title, Description and Creation Time
+    say what ran, where and when (:class:`ReportFacts`)."""
+    facts = report_facts(session)
+    fig = figure(session, metrics, facts)
+    buffer = io.BytesIO()
+    metadata = {'Title': facts.title, 'Software': _software(facts.versions),
+                'Description': f'session {session.path}; band +/-{facts.band_n:g} N from '
+                               f'{facts.band_from}; time from the session start'}
+    if facts.started is not None:
+        metadata['Creation Time'] = facts.started.isoformat()
+    fig.savefig(buffer, format='png', dpi=120, metadata=metadata)
+    plt.close(fig)
+    return buffer.getvalue()
+
+
+def _software(versions: dict[str, str]) -> str:
+    return ', '.join(f'{name} {version}' for name, version in versions.items())
+
+
+def figure(session: Session, metrics: dict[str, float], facts: ReportFacts | None = None
+           ) -> Figure:
+    """The figure of a session: force against reference with the session's band, depth, feed
+    and override over time in seconds from the session's start, the metrics and the cut log.
+    The caller closes it (``plt.close``)."""
+    facts = facts or report_facts(session)
+    s, t = session.signals, session.t_s - facts.start_s
     experiment = session.experiment
     reference = s['reference_n']
     if experiment is not None:
         reference = np.where(np.isnan(reference), experiment.controller.reference_force_n,
                              reference)
-    band = experiment.run.allowed_error_n if experiment is not None else 0.0
+    band = facts.band_n
 
     fig = plt.figure(figsize=(12, 8.5), layout='constrained')
     grid = fig.add_gridspec(4, 2, width_ratios=(4, 1), height_ratios=(2.2, 1, 1, 1.4))
@@ -232,17 +324,17 @@ def figure_png(session: Session, metrics: dict[str, float]) -> bytes:
     ax_override.step(*_envelope(t, applied), where='post', color='tab:red', lw=1.2,
                      label='applied (PMC)')
     ax_override.set_ylabel('override [%]')
-    ax_override.set_xlabel('time [s]')
+    ax_override.set_xlabel('time from the session start [s]')
     ax_override.legend(loc='upper right', fontsize=8)
     ax_override.grid(alpha=0.3)
 
-    title = experiment.run.name if experiment is not None else session.path.name
+    title = facts.title
     if experiment is not None and experiment.run.paper_figure:
         title += f' (reproduces {experiment.run.paper_figure})'
     if experiment is not None:
         c = experiment.controller
-        title += (f'\ncontroller {c.controller}, table {c.override_table}, '
-                  f'F_ref {c.reference_force_n:g} N')
+        title += (f'\ncontroller {c.controller}, F_ref {c.reference_force_n:g} N, allowed '
+                  f'±{band:g} N')
     fig.suptitle(title, fontsize=11)
 
     ax_table.axis('off')
@@ -261,7 +353,8 @@ def figure_png(session: Session, metrics: dict[str, float]) -> bytes:
         shown = cuts[:12]   # the HTML report lists them all
         height = 0.03 * (len(shown) + 1)
         log = ax_table.table(
-            cellText=[[cell for k, cell in enumerate(_cut_cells(r)) if k in (0, 2, 3, 4, 5, 6)]
+            cellText=[[cell for k, cell in enumerate(_cut_cells(r, facts.start_s))
+                       if k in (0, 2, 3, 4, 5, 6)]
                       for r in shown],
             colLabels=['cut', 't', 't100', 'Fmax', 'min %', 'ovl'],
             cellLoc='left', bbox=Bbox.from_bounds(0.0, 0.0, 1.0, height),
@@ -272,35 +365,45 @@ def figure_png(session: Session, metrics: dict[str, float]) -> bytes:
                       '[N], lowest override [%], overload events', fontsize=7,
                       transform=ax_table.transAxes, wrap=True)
 
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format='png', dpi=120)
-    plt.close(fig)
-    return buffer.getvalue()
+    return fig
 
 
 def write_html_report(session: Session, metrics: dict[str, float], out: Path) -> Path:
-    """One self-contained HTML page: the figure (embedded PNG) and the metrics table."""
+    """One self-contained HTML page to hand on: what ran, on which machine, when, with which
+    software; the figure (embedded PNG), the metrics, the cut log and every parameter."""
+    facts = report_facts(session)
     image = base64.b64encode(figure_png(session, metrics)).decode('ascii')
-    experiment = session.experiment
-    title = html.escape(experiment.run.name if experiment is not None else session.path.name)
+    e = html.escape
     rows = ''.join(
-        f'<tr><td>{html.escape(METRIC_LABELS[k][0])}</td><td>{html.escape(k)}</td>'
-        f'<td style="text-align:right">{metrics[k]:.3f} {html.escape(METRIC_LABELS[k][1])}</td>'
-        '</tr>' for k in (*METRIC_NAMES, *OPTIONAL_METRICS, 'realtime_factor')
-        if k in metrics)
+        f'<tr><td>{e(METRIC_LABELS[k][0])}</td><td>{e(k)}</td>'
+        f'<td style="text-align:right">{metrics[k]:.3f} {e(METRIC_LABELS[k][1])}</td>'
+        '</tr>' for k in (*METRIC_NAMES, *OPTIONAL_METRICS, 'realtime_factor') if k in metrics)
     cuts = cut_table(session)
-    cut_rows = ''.join('<tr>' + ''.join(f'<td style="text-align:right">{html.escape(c)}</td>'
-                                        for c in _cut_cells(r)) + '</tr>' for r in cuts)
-    cut_head = ''.join(f'<th>{html.escape(h)}{f" [{u}]" if u else ""}</th>'
-                       for h, u, _ in CUT_COLUMNS)
-    cut_log = (f'<h2>Cut log</h2><table border="1" cellpadding="4" class="cuts"><tr>{cut_head}'
-               f'</tr>{cut_rows}</table>' if cuts else '')
+    cut_rows = ''.join('<tr>' + ''.join(f'<td style="text-align:right">{e(c)}</td>'
+                                        for c in _cut_cells(r, facts.start_s)) + '</tr>'
+                       for r in cuts)
+    cut_head = ''.join(f'<th>{e(h)}{f" [{u}]" if u else ""}</th>' for h, u, _ in CUT_COLUMNS)
+    cut_log = (f'<h2>Cut log</h2><p>start: seconds from the session start</p><table border="1" '
+               f'cellpadding="4" class="cuts"><tr>{cut_head}</tr>{cut_rows}</table>'
+               if cuts else '')
+    about = ''.join(f'<tr><th style="text-align:left">{e(k)}</th><td>{e(v)}</td></tr>'
+                    for k, v in (
+        ('experiment', facts.experiment), ('machine', facts.machine),
+        ('recorded', facts.date_text), ('session', str(session.path)),
+        ('allowed band', f'±{facts.band_n:g} N ({facts.band_from})'),
+        ('software', _software(facts.versions) or 'not recorded')))
+    settings = ''.join(
+        f'<h3>{e(section)}</h3><table border="1" cellpadding="3" class="parameters">'
+        + ''.join(f'<tr><td>{e(name)}</td><td>{e(str(value))}</td></tr>'
+                  for name, value in values.items()) + '</table>'
+        for section, values in facts.parameters.items())
     out.write_text(
-        f'<!DOCTYPE html>\n<html><head><meta charset="utf-8"><title>{title}</title></head>'
-        f'<body style="font-family:sans-serif"><h1>{title}</h1>'
-        f'<p>session: {html.escape(str(session.path))}</p>'
+        f'<!DOCTYPE html>\n<html><head><meta charset="utf-8"><title>{e(facts.title)}</title>'
+        f'</head><body style="font-family:sans-serif"><h1>{e(facts.title)}</h1>'
+        f'<table class="about" cellpadding="3">{about}</table>'
         f'<img alt="force, depth, feed and override over time" '
         f'src="data:image/png;base64,{image}" style="max-width:100%">'
-        f'<table border="1" cellpadding="4"><tr><th>metric</th><th>key</th><th>value</th></tr>'
-        f'{rows}</table>{cut_log}</body></html>\n')
+        f'<h2>Metrics</h2><table border="1" cellpadding="4"><tr><th>metric</th><th>key</th>'
+        f'<th>value</th></tr>{rows}</table>{cut_log}'
+        f'<h2>Parameters</h2>{settings or "<p>none recorded</p>"}</body></html>\n')
     return out

@@ -134,7 +134,7 @@ class ControllerBase(Settings):
     controller: str = setting('smc', 'Control law')
     reference_force_n: float = setting(500.0, 'Reference cutting force F_ref; below '
                                        'max_feed_force_n', 'N', low=0.0, low_open=True,
-                                       high=1e5, dynamic=True)
+                                       high=1e5, dynamic=True, cite='Park 1998, Eq. 9')
     control_period_s: float = shared.control_period_s()
     spindle_speed_rpm: float = shared.spindle_speed_rpm()
     spindle_speed_stale_s: float = shared.spindle_speed_stale_s()
@@ -153,32 +153,36 @@ class ControllerBase(Settings):
                                           low=0.0, high=255.0)
     model_servo_time_constant_s: float = setting(0.17, 'Servo time constant tau_s the '
                                                  'controllers assume (Park Eq. 2)', 's', low=0.0,
-                                                 low_open=True, high=10.0)
+                                                 low_open=True, high=10.0, cite='Park 1998, Eq. 2')
     model_servo_model: str = setting('first_order', 'Servo model the predictor assumes: first '
                                      'order (tau_s, Park Eq. 2) or second order (w_n, damping, '
                                      'Hwang & Chen Eq. 1)', choices=('first_order',
                                                                      'second_order'))
     model_servo_natural_freq_rad_s: float = setting(60.0, 'Second-order servo natural frequency '
                                                     'the predictor assumes', 'rad/s', low=0.0,
-                                                    low_open=True, high=1e4)
+                                                    low_open=True, high=1e4,
+                                                    cite='Hwang & Chen 1990, Eq. 1')
     model_servo_damping: float = setting(0.7, 'Second-order servo damping the predictor assumes',
-                                         low=0.0, low_open=True, high=10.0)
+                                         low=0.0, low_open=True, high=10.0,
+                                         unit='-', cite='Hwang & Chen 1990, Eq. 1')
     model_dead_time_s: float = setting(0.0, 'PMC dead time the predictor assumes (Kim: 0.08 s '
                                        'on a FANUC); from `turning-force identify`', 's', low=0.0,
-                                       high=2.0)
+                                       high=2.0, cite='Kim, Eqs. 1-2')
     model_cutting_time_constant_s: float = setting(0.05, 'Process time constant tau_c the SMC '
                                                    'assumes (Park Eq. 1)', 's', low=0.0,
-                                                   low_open=True, high=10.0)
+                                                   low_open=True, high=10.0,
+                                                   cite='Park 1998, Eq. 1')
     model_cutting_exponent: float = setting(1.0, 'Feed exponent g of the force the laws assume, '
                                             'F = K_s d f^g (Kienzle; 1: Park)', low=0.1,
-                                            high=2.0)
+                                            high=2.0, unit='-', cite='Hwang & Chen 1990, Eq. 3')
     oscillation_swing_n: float = setting(
         40.0, 'Oscillation alarm: a swing of the force error (from one turning point to the '
-        'next) this large counts toward it; 0: no alarm', 'N', low=0.0, high=1e5, dynamic=True)
+        'next) this large counts toward it; 0: no alarm', 'N', low=0.0, high=1e5, dynamic=True,
+        cite='Astrom & Hagglund 1984 (a limit cycle as a relay experiment)')
     oscillation_swings: int = setting(
         4, 'Oscillation alarm: this many counted swings in a row raise it, each no smaller '
         'than 0.7 of the one before and 0.08-2 s after it (a depth step gives two: its rise '
-        'and its return; noise turns faster)', low=2, high=100, dynamic=True)
+        'and its return; noise turns faster)', '-', low=2, high=100, dynamic=True)
     oscillation_reaction: str = setting(
         'detune', 'What the oscillation alarm does until the tool leaves the cut: a slow '
         "integral law whose crossover is a sixth of the oscillation's frequency (detune), "

@@ -231,16 +231,16 @@ def controller_applied(cp: np.ndarray, cs: np.ndarray, applied: float, engaged: 
                        reason: int) -> None:
     """The override the PMC applied after the controller's request (after the quantiser and
     the gate: FeedOverride's ``applied_pct``, ``engaged`` and ``reason``). Where the request did
-    not go through as asked (the tool out of the cut, or any reason but
-    :data:`REASON_NORMAL`: disarmed, a hold, the air-cut or entry feed, the dial, the rise
-    limit), the law starts afresh from the applied level each period: conditional
-    integration, the anti-windup of Astrom & Hagglund (PID Controllers, 1995, Sec. 3.5), so
-    that no law winds up against a feed it does not set and each entry into the cut starts
-    from the feed the tool meets the work with."""
+    not go through as asked (any reason but :data:`REASON_NORMAL`: disarmed, a hold, the air-cut
+    or entry feed, the dial, the rise limit), the law starts afresh from the applied level each
+    period: conditional integration, the anti-windup of Astrom & Hagglund (PID Controllers,
+    1995, Sec. 3.5), so that no law winds up against a feed it does not set and each entry into
+    the cut starts from the feed the tool meets the work with. Out of the cut, the oscillation
+    detector starts afresh and its alarm ends."""
     cs[CS_ENGAGED] = 1.0 if engaged else 0.0
     if not engaged:
         _forget(cs)
-    if (not engaged or reason != REASON_NORMAL) and math.isfinite(applied):
+    if reason != REASON_NORMAL and math.isfinite(applied):
         cs[CS_HELD] = clip(cp, applied)
         cs[CS_CARRY] = 0.0
         law_reset(int(cp[C_KIND]), cp, cs)

@@ -67,17 +67,18 @@ class EstimatorSettings(FeedDriveSettings):
     force_filter: str = setting('kalman', 'Filter giving force and force rate',
                                 choices=('lowpass', 'kalman'))
     lowpass_cutoff_hz: float = setting(20.0, 'Butterworth low-pass cut-off', 'Hz', low=0.0,
-                                       low_open=True)
-    lowpass_order: int = setting(2, 'Butterworth low-pass order', low=1, high=8)
+                                       low_open=True, high=1e5)
+    lowpass_order: int = setting(2, 'Butterworth low-pass order', low=1, high=8, unit='-')
     derivative_time_constant_s: float = setting(0.01, 'Time constant of the filtered derivative '
                                                 'after the low-pass', 's', low=0.0,
                                                 low_open=True, high=1.0)
     kalman_force_noise_n: float = setting(4.0, 'Standard deviation of one friction-compensated '
                                           'force sample (current noise / Eq. 26 slope)', 'N',
-                                          low=0.0, low_open=True)
+                                          low=0.0, low_open=True, high=1e5,
+                                          cite='Park 1998, Eq. 26; El-Sinawi 2011')
     kalman_accel_noise_n_s2: float = setting(2.0e4, 'Standard deviation of the force '
                                              'acceleration the model allows', 'N/s^2', low=0.0,
-                                             low_open=True)
+                                             low_open=True, high=1e12, cite='El-Sinawi 2011')
     current_range_a: float = setting(30.0, 'Phase-current sensor range; samples beyond it mark '
                                      'the estimate saturated', 'A', low=0.0, low_open=True,
                                      high=1e4)
@@ -92,7 +93,8 @@ class EstimatorSettings(FeedDriveSettings):
                                             'follows what the air move measures', 's',
                                             low=1e-3, high=600.0)
     rezero_max_change: float = setting(0.5, 'Friction re-zero: the scale on the calibrated '
-                                       'friction stays within 1 -/+ this', low=0.0, high=0.9)
+                                       'friction stays within 1 -/+ this', low=0.0, high=0.9,
+                                       unit='-')
     max_stamp_jump_s: float = setting(1.0, 'A block stamped further than this after the end of '
                                       'the previous one is refused (a corrupt stamp), until '
                                       f'{RESYNC_BLOCKS} contiguous blocks show a new time line',

@@ -53,28 +53,28 @@ class DaqSettings(Settings):
     sample_rate_hz: float = setting(1000.0, 'Sample clock of currents and angle', 'Hz',
                                     low=10.0, high=1e6)
     samples_per_block: int = setting(10, 'Samples per published block (one control period)',
-                                     low=1, high=1_000_000)
+                                     low=1, high=1_000_000, unit='-')
     input_range_v: float = setting(10.0, 'Analog input range, +/-', 'V', low=0.0,
                                    low_open=True, high=10.0)
     hall_scale_a_per_v: float = setting(10.0, 'Phase current per volt of Hall sensor output '
-                                        '(both phases)', 'A/V', low=0.0, low_open=True)
+                                        '(both phases)', 'A/V', low=0.0, low_open=True, high=1e4)
     current_u_offset_v: float = setting(0.0, 'u-phase sensor output at zero current', 'V',
                                         low=-10.0, high=10.0)
     current_v_offset_v: float = setting(0.0, 'v-phase sensor output at zero current', 'V',
                                         low=-10.0, high=10.0)
     encoder_counts_per_rev: int = setting(10000, 'Encoder counts per motor revolution, after '
-                                          'x4 decoding', low=1)
+                                          'x4 decoding', low=1, unit='-', high=2**31 - 1)
     angle_v_per_rad: float = setting(10.0 / (2.0 * math.pi), 'Analog angle output: volts per '
                                      'electrical radian (0 V at 0 rad)', 'V/rad', low=0.0,
-                                     low_open=True)
+                                     low_open=True, high=1e3)
     electrical_zero_rad: float = setting(0.0, 'Electrical angle at encoder count 0 (the '
                                          "encoder's alignment to the rotor)", 'rad',
                                          low=-2.0 * math.pi, high=2.0 * math.pi)
-    pole_pairs: int = setting(4, 'Pole pairs of the feed servo motor', low=1, high=64)
+    pole_pairs: int = setting(4, 'Pole pairs of the feed servo motor', low=1, high=64, unit='-')
     ball_screw_pitch_mm: float = setting(12.0, 'Ball-screw pitch (motor on the screw)', 'mm',
-                                         low=0.0, low_open=True)
+                                         low=0.0, low_open=True, high=100.0)
     feed_rate_window: int = setting(10, 'Samples the feed rate is differenced over', low=1,
-                                    high=100000)
+                                    high=100000, unit='-')
     frame_id: str = setting('z_axis', 'frame_id of the published blocks')
 
     @property

@@ -191,17 +191,20 @@ class FeedDriveSettings(Settings):
     both. """
 
     friction_min_feed_mm_min: float = setting(6.0, 'Slowest feed of the friction curve (Park '
-                                              'Eq. 25)', 'mm/min', low=0.0, low_open=True)
+                                              'Eq. 25)', 'mm/min', low=0.0, low_open=True,
+                                              high=1e5, cite='Park 1998, Eq. 25')
     friction_max_feed_mm_min: float = setting(300.0, 'Fastest feed of the friction curve',
-                                              'mm/min', low=0.0, low_open=True)
+                                              'mm/min', low=0.0, low_open=True, high=1e5,
+                                              cite='Park 1998, Eq. 25')
     friction_at_min_feed_a: float = setting(0.60, 'Friction current at the slowest feed', 'A',
-                                            low=-100.0, high=100.0)
+                                            low=-100.0, high=100.0, cite='Park 1998, Eq. 25')
     friction_at_max_feed_a: float = setting(0.35, 'Friction current at the fastest feed', 'A',
-                                            low=-100.0, high=100.0)
+                                            low=-100.0, high=100.0, cite='Park 1998, Eq. 25')
     current_offset_a: float = setting(-0.12432, 'q-axis current at zero force (Park Eq. 26)',
-                                      'A', low=-100.0, high=100.0)
+                                      'A', low=-100.0, high=100.0, cite='Park 1998, Eq. 26')
     current_per_force_a_n: float = setting(0.00629, 'q-axis current per newton of cutting force '
-                                           '(Park Eq. 26)', 'A/N', low=0.0, low_open=True)
+                                           '(Park Eq. 26)', 'A/N', low=0.0, low_open=True,
+                                           high=1.0, cite='Park 1998, Eq. 26')
 
     def check(self) -> None:
         if self.friction_max_feed_mm_min <= self.friction_min_feed_mm_min:

@@ -27,7 +27,7 @@ from turning_force.core import shared
 from turning_force.core.plant.drive import CurrentBlock, FeedDriveSettings
 from turning_force.core.pmc.overrides import override_table
 from turning_force.core.pmc.shopfloor import NO_INPUTS, InputValues
-from turning_force.core.settings import setting
+from turning_force.core.settings import INT64_MAX, setting
 
 __all__ = ['DepthProfile', 'Dynamometer', 'PlantBlock', 'PlantSettings']
 
@@ -41,7 +41,7 @@ class PlantSettings(FeedDriveSettings):
 
     SECTION = 'lathe_sim'
 
-    seed: int = setting(1, 'Seed of the sensor and process noise', low=0)
+    seed: int = setting(1, 'Seed of the sensor and process noise', low=0, unit='-', high=INT64_MAX)
     control_period_s: float = shared.control_period_s()
     override_table: str = override_table()
     sample_rate_hz: float = setting(1000.0, 'DAQ sample rate of the phase currents', 'Hz',
@@ -50,25 +50,30 @@ class PlantSettings(FeedDriveSettings):
     programmed_feed_mm_rev: float = shared.programmed_feed_mm_rev()
     specific_cutting_force_n_mm2: float = setting(
         2200.0, 'Specific cutting force K_s (Park Eq. 1) or k_f (Hwang & Chen Eq. 3)',
-        'N/mm^2', low=0.0, low_open=True, high=20000.0)
+        'N/mm^2', low=0.0, low_open=True, high=20000.0,
+        cite='Park 1998, Eq. 1; Hwang & Chen 1990, Eq. 3')
     cutting_exponent: float = setting(1.0, 'Feed exponent g of F = k d f^g (1: linear, Park)',
-                                      low=0.1, high=1.5)
+                                      low=0.1, high=1.5, unit='-',
+                                      cite='Hwang & Chen 1990, Eq. 3 (g = 0.95)')
     cutting_time_constant_s: float = setting(
         0.05, 'Cutting-process time constant tau_c (Park Eq. 1); 0 for a static process', 's',
-        low=0.0, high=10.0)
+        low=0.0, high=10.0, cite='Park 1998, Eq. 1')
     servo_model: str = setting('first_order', 'CNC feed-servo model',
                                choices=('first_order', 'second_order'))
     servo_time_constant_s: float = setting(0.17, 'First-order servo time constant tau_s '
-                                           '(Park Eq. 2)', 's', low=0.0, low_open=True, high=10.0)
+                                           '(Park Eq. 2)', 's', low=0.0, low_open=True, high=10.0,
+                                           cite='Park 1998, Eq. 2')
     servo_natural_freq_rad_s: float = setting(60.0, 'Second-order servo natural frequency w_n '
                                               '(Hwang & Chen Eq. 1)', 'rad/s', low=0.0,
-                                              low_open=True, high=1e4)
+                                              low_open=True, high=1e4,
+                                              cite='Hwang & Chen 1990, Eq. 1')
     servo_damping: float = setting(0.7, 'Second-order servo damping ratio xi', low=0.0,
-                                   low_open=True, high=10.0)
+                                   low_open=True, high=10.0, unit='-',
+                                   cite='Hwang & Chen 1990, Eq. 1')
     pmc_dead_time_s: float = setting(0.0, 'PMC dead time before the servo sees a new override '
-                                     '(Kim: 0.08 s)', 's', low=0.0, high=2.0)
+                                     '(Kim: 0.08 s)', 's', low=0.0, high=2.0, cite='Kim, Eqs. 1-2')
     depth_times_s: tuple[float, ...] = setting([0.0, 4.0, 8.0], 'Times of the depth-of-cut '
-                                               'break points', 's', low=0.0)
+                                               'break points', 's', low=0.0, high=3600.0)
     depth_mm: tuple[float, ...] = setting([1.0, 2.0, 3.0], 'Depth of cut at each break point',
                                           'mm', low=0.0, high=50.0)
     depth_interpolation: str = setting('step', 'Depth between break points: held (steps) or '
@@ -80,7 +85,8 @@ class PlantSettings(FeedDriveSettings):
                                        low=0.0, high=1e4)
     force_noise_fraction: float = setting(0.0, 'Cutting-force fluctuation, uniform within '
                                           '+/- this fraction (Hwang & Chen Example 2: 0.01)',
-                                          low=0.0, high=0.5)
+                                          low=0.0, high=0.5, unit='-',
+                                          cite='Hwang & Chen 1990, Example 2')
     sensor_fault_start_s: float = setting(0.0, 'Fault injection: the current sensor reads NaN '
                                           'from this time (a broken wire, a DAQ fault)', 's',
                                           low=0.0, high=3600.0)
@@ -131,9 +137,9 @@ class PlantSettings(FeedDriveSettings):
         'dry_run_feed_mm_min whatever the override', 's', low=0.0, high=3600.0)
     dry_run_feed_mm_min: float = setting(1000.0, 'The dry-run feed rate', 'mm/min', low=0.0,
                                          high=1e5)
-    pole_pairs: int = setting(4, 'Pole pairs of the feed servo motor', low=1, high=64)
+    pole_pairs: int = setting(4, 'Pole pairs of the feed servo motor', low=1, high=64, unit='-')
     ball_screw_pitch_mm: float = setting(12.0, 'Ball-screw pitch (motor on the screw)', 'mm',
-                                         low=0.0, low_open=True)
+                                         low=0.0, low_open=True, high=100.0)
 
     def check(self) -> None:
         super().check()

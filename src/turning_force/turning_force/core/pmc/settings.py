@@ -88,8 +88,8 @@ class BridgeSettings(ShopFloorSettings):
         dynamic=True)
     feed_follow_overshoot: float = setting(
         0.5, "How far beyond the override's recent swing the axis may run, as a share of it (a "
-        'second-order servo with damping 0.3 overshoots a step by 37 %)', low=0.0, high=5.0,
-        dynamic=True)
+        'second-order servo with damping 0.3 overshoots a step by 37 %)', '-', low=0.0,
+        high=5.0, dynamic=True)
     feed_follow_lag_s: float = setting(
         0.5, 'How slowly the axis may follow a change of the override (PMC dead time and servo '
         'lag together, with margin)', 's', low=0.01, high=10.0, dynamic=True)

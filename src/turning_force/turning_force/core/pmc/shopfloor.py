@@ -113,17 +113,18 @@ class ShopFloorSettings(Settings):
     reaction_force_fraction: float = setting(
         0.8, "The overload reaction's limit as a fraction of overload_force_n (which holds the "
         'feed at once); also the limit the cut log counts overload events at', low=0.0,
-        low_open=True, high=1.0)
+        low_open=True, high=1.0, unit='-')
     reaction_delay_s: float = setting(
         1.0, 'How long the force must stay above the reaction limit before the overload '
         'reaction (AFC: 1 s)', 's', low=0.0, low_open=True, high=600.0)
     breakage_spike_fraction: float = setting(
         0.0, 'Tool breakage: a force this fraction above its recent level holds the feed from '
-        'the next period; 0: off', low=0.0, high=100.0)
+        'the next period; 0: off', low=0.0, high=100.0, unit='-')
     breakage_drop_fraction: float = setting(
         0.0, 'Tool breakage: a force this fraction below its recent level holds the feed; '
         'judged only while the program-enable input is set (a tool exit drops the force too: '
-        'the program clears the input before it); 0: off', low=0.0, high=1.0, high_open=True)
+        'the program clears the input before it); 0: off', low=0.0, high=1.0, high_open=True,
+        unit='-')
     breakage_window_s: float = setting(
         0.5, "The force's recent level for the breakage detector: its mean over this window", 's',
         low=0.0, low_open=True, high=60.0)
@@ -137,7 +138,7 @@ class ShopFloorSettings(Settings):
         'learned, written to teach_file, and the reference set from it')
     teach_fraction: float = setting(
         0.9, 'The reference a learning cut sets: this fraction of its learned force level',
-        low=0.0, low_open=True, high=2.0)
+        low=0.0, low_open=True, high=2.0, unit='-')
 
     def debounce_blocks(self, period_s: float) -> int:
         """The control blocks the force must stay past a threshold for the cut detector to

@@ -44,7 +44,8 @@ class Settings(ControllerBase):
     adaptive_loop_gain_per_s: float = setting(3.0, 'Closed-loop integral gain the adaptive '
                                               'controller holds (Masory & Koren); at most '
                                               '1 / control_period_s', '1/s', low=0.0,
-                                              low_open=True, high=1e4, dynamic=True)
+                                              low_open=True, high=1e4, dynamic=True,
+                                              cite='Park 1998, Figs. 1-2 (Masory & Koren)')
     adaptive_estimate_time_constant_s: float = setting(0.05, 'Smoothing of the on-line process '
                                                        'gain estimate', 's', low=0.0, high=10.0)
 

@@ -59,17 +59,22 @@ class Settings(ControllerBase):
     pp_natural_freq_rad_s: float = setting(6.0, 'Closed-loop natural frequency the pole '
                                            'placement assigns; below the Nyquist rate '
                                            'pi / control_period_s', 'rad/s', low=0.0,
-                                           low_open=True, high=1e4, dynamic=True)
+                                           low_open=True, high=1e4, dynamic=True,
+                                           cite='Kim, Eqs. 16-24')
     pp_damping: float = setting(0.9, 'Closed-loop damping the pole placement assigns', low=0.0,
-                                low_open=True, high=5.0, dynamic=True)
+                                low_open=True, high=5.0, dynamic=True, unit='-',
+                                cite='Kim, Eqs. 16-24')
     pp_gain0_n_per_pct: float = setting(8.0, 'Process gain the identification starts from',
                                         'N/%', low=0.0, low_open=True, high=1e4)
     pp_dead_zone_n: float = setting(2.0, 'Prediction errors below this do not update the model '
-                                    '(dead zone)', 'N', low=0.0, high=1e4)
+                                    '(dead zone)', 'N', low=0.0, high=1e4,
+                                    cite='Kim, Eq. 12 (RLS dead zone)')
     pp_p0: float = setting(100.0, 'Covariance the RLS starts from and is reset to', low=0.0,
-                           low_open=True, high=1e9)
+                           low_open=True, high=1e9, unit='-',
+                           cite='Kim, Eq. 12 (RLS with covariance resetting)')
     pp_reset_trace: float = setting(1e-2, 'Covariance resetting: when trace(P) falls below '
-                                    'this, P is reset to p0 I', low=0.0, high=1e9)
+                                    'this, P is reset to p0 I', low=0.0, high=1e9, unit='-',
+                                    cite='Kim, Eq. 12 (RLS with covariance resetting)')
 
     def check(self) -> None:
         super().check()

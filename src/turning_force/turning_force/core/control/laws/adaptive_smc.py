@@ -52,20 +52,26 @@ class Settings(ControllerBase):
     """Hwang & Chen's law's settings."""
 
     asmc_pole: float = setting(0.0, 'Eigenvalue q assigned on the sliding surface (Hwang & Chen '
-                               'Eq. 22)', low=-1.0, high=1.0, low_open=True, high_open=True)
+                               'Eq. 22)', low=-1.0, high=1.0, low_open=True, high_open=True,
+                               unit='-', cite='Hwang & Chen 1990, Eq. 22')
     asmc_s_t: float = setting(10.0, 'Forgetting-factor sensitivity s_t = v^2 s_a (Eq. 38)',
-                              'N^2', low=0.0, low_open=True, high=1e12)
+                              'N^2', low=0.0, low_open=True, high=1e12,
+                              cite='Hwang & Chen 1990, Eq. 38')
     asmc_f_min: float = setting(0.1, 'Smallest forgetting factor f_min (Eq. 39)', low=0.0,
-                                low_open=True, high=1.0)
+                                low_open=True, high=1.0,
+                                unit='-', cite='Hwang & Chen 1990, Eq. 39')
     asmc_p0: float = setting(1000.0, 'Initial covariance P(0) = p0 I', low=0.0, low_open=True,
-                             high=1e9)
+                             high=1e9, unit='-', cite='Hwang & Chen 1990, Eqs. 33-39')
     asmc_theta0: tuple[float, ...] = setting([0.5, 0.0, 10.0, 5.0], 'Initial [-a1, -a2, b1, b2] '
                                              '(Hwang & Chen Example 1, u in mm/s)',
-                                             low=-1e6, high=1e6)
+                                             low=-1e6, high=1e6,
+                                             unit='-', cite='Hwang & Chen 1990, Eq. 7, Example 1')
     asmc_b_min: float = setting(1e-3, 'Remark 1: |b| below this is treated as zero', low=0.0,
-                                low_open=True, high=1e3)
+                                low_open=True, high=1e3,
+                                unit='-', cite='Hwang & Chen 1990, Remark 1')
     asmc_freeze_limit: float = setting(1e3, 'Remark 2: hold u when |A(1)/B(1)| reaches this',
-                                       'mm/s per N', low=0.0, low_open=True, high=1e9)
+                                       'mm/s per N', low=0.0, low_open=True, high=1e9,
+                                       cite='Hwang & Chen 1990, Remark 2')
 
     def check(self) -> None:
         super().check()

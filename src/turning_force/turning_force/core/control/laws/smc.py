@@ -76,25 +76,31 @@ class Settings(ControllerBase):
 
     smc_lambda_per_s: float = setting(20.0, 'Sliding-surface bandwidth lambda (Park Eq. 10), '
                                       'bounded by Eqs. 22-24', '1/s', low=0.0, low_open=True,
-                                      dynamic=True)
+                                      dynamic=True, high=1e4, cite='Park 1998, Eqs. 10, 22-24')
     smc_eta: float = setting(0.1, 'Reaching-condition margin eta (Park Eq. 14)', 'N/s^2',
-                             low=0.0, high=1e6, dynamic=True)
+                             low=0.0, high=1e6, dynamic=True, cite='Park 1998, Eq. 14')
     smc_epsilon_n: float = setting(25.0, 'Boundary-layer width epsilon, the allowed tracking '
                                    'error (Park Eq. 21); 0: from the balance condition K / Phi '
                                    '= lambda / 3; below max_feed_force_n', 'N', low=0.0,
-                                   high=1e5, dynamic=True)
+                                   high=1e5, dynamic=True, cite='Park 1998, Eq. 21')
     smc_ksd_min_n_mm: float = setting(1000.0, 'Smallest K_s d the process may have (Park Eq. 7)',
-                                      'N/mm', low=0.0, low_open=True, high=1e6)
+                                      'N/mm', low=0.0, low_open=True, high=1e6,
+                                      cite='Park 1998, Eqs. 7-8')
     smc_ksd_max_n_mm: float = setting(8000.0, 'Largest K_s d the process may have (Park Eq. 7)',
-                                      'N/mm', low=0.0, low_open=True, high=1e6)
+                                      'N/mm', low=0.0, low_open=True, high=1e6,
+                                      cite='Park 1998, Eqs. 7-8')
     smc_surface: str = setting('park1998', "Sliding surface: Park Eq. 10 (s = e' + lambda e), "
                                'with integral action (Slotine & Li Sec. 7.1.3), or that with a '
                                'damping rising as the error shrinks (El Khalick et al. 2012)',
-                               choices=SURFACES)
+                               choices=SURFACES,
+                               cite='Park 1998, Eq. 10; Slotine & Li 1991, Sec. 7.1.3; '
+                               'El Khalick et al. 2012')
     smc_damping_far: float = setting(0.6, 'Nonlinear surface: damping far from the reference',
-                                     low=0.1, high=5.0, dynamic=True)
+                                     low=0.1, high=5.0, dynamic=True,
+                                     unit='-', cite='El Khalick et al. 2012')
     smc_damping_near: float = setting(1.5, 'Nonlinear surface: damping at the reference',
-                                      low=0.1, high=5.0, dynamic=True)
+                                      low=0.1, high=5.0, dynamic=True,
+                                      unit='-', cite='El Khalick et al. 2012')
     smc_damping_error_n: float = setting(50.0, 'Nonlinear surface: the error at which the '
                                          'damping is mostly the far one', 'N', low=0.0,
                                          low_open=True, high=1e5, dynamic=True)
@@ -105,9 +111,11 @@ class Settings(ControllerBase):
                                               'predictor learns while cutting', 's', low=1e-3,
                                               high=10.0)
     smc_resonance_hz: float = setting(0.0, 'Lowest unmodelled structural resonance nu_R for the '
-                                      'Eq. 22 bound; 0: none known', 'Hz', low=0.0)
+                                      'Eq. 22 bound; 0: none known', 'Hz', low=0.0,
+                                      high=1e5, cite='Park 1998, Eq. 22')
     smc_unmodeled_delay_s: float = setting(0.0, 'Largest unmodelled time delay T_A for the '
-                                           'Eq. 23 bound; 0: none', 's', low=0.0)
+                                           'Eq. 23 bound; 0: none', 's', low=0.0,
+                                           high=10.0, cite='Park 1998, Eq. 23')
 
     def check(self) -> None:
         super().check()

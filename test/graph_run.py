@@ -1,0 +1,55 @@
+"""The graph's executables started as the machine PC starts them (``ros2 run``'s executables
+from the venv), stopped with SIGINT as an operator does, and the all-in-one graph recorded
+while it regulates: for the wall-clock tests (test/nodes/test_graph_realtime.py,
+test/session/test_report_handover.py)."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from rclpy.node import Node
+from turning_force_msgs.msg import FeedOverride
+
+BIN = Path(sys.prefix) / 'bin'
+
+
+def start(executable: str, namespace: str, params: Path, *extra: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [str(BIN / executable), '--ros-args', '--params-file', str(params),
+         '-r', f'__ns:={namespace}', *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def stop(process: subprocess.Popen[str]) -> str:
+    process.send_signal(signal.SIGINT)
+    output, _ = process.communicate(timeout=30)
+    assert process.returncode == 0, output
+    return output
+
+
+def record_regulated(context: Any, executor: Any, spin_until: Callable[..., bool],
+                     experiment: Path, bag: Path, namespace: str, blocks: int,
+                     recorder: str = '') -> None:
+    """``turning_force_graph`` on ``experiment``, armed, recording to ``bag`` (plus the
+    ``recorder`` entries of its section, e.g. ``experiment_file: ...``), until ``blocks``
+    overrides were written for the regulated reason; then stopped."""
+    params = bag.parent / f'{bag.name}_session.yaml'   # node-scoped values, as on the lathe PC
+    params.write_text(f'/**/pmc_bridge:\n  ros__parameters: {{armed: true}}\n'
+                      f'/**/session_recorder:\n  ros__parameters: {{output_dir: {bag}'
+                      f'{", " + recorder if recorder else ""}}}\n')
+    graph = start('turning_force_graph', namespace, experiment, '--params-file', str(params))
+    try:
+        probe = Node('probe', context=context)
+        executor.add_node(probe)
+        normal: list[FeedOverride] = []
+        probe.create_subscription(
+            FeedOverride, f'{namespace}/pmc/feed_override',
+            lambda m: normal.append(m) if m.reason == FeedOverride.REASON_NORMAL else None, 10)
+        assert spin_until(lambda: len(normal) >= blocks, 60.0)
+    finally:
+        stop(graph)
