@@ -4,10 +4,6 @@
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 from rclpy.node import Node
@@ -15,36 +11,20 @@ from rclpy.parameter import Parameter
 from rosbags.highlevel import AnyReader
 from turning_force_msgs.msg import FeedOverride
 
+from graph_helpers import session_params, start, stop
 from turning_force.nodes.lathe_sim import LatheSimNode
 from turning_force.session.bag import typestore
 from turning_force.session.reader import read_session
 
-BIN = Path(sys.prefix) / 'bin'
 NODES = ('lathe_sim', 'force_estimator', 'force_controller', 'pmc_bridge', 'session_recorder')
-
-
-def start(executable: str, namespace: str, params: Path, *extra: str) -> subprocess.Popen[str]:
-    return subprocess.Popen(
-        [str(BIN / executable), '--ros-args', '--params-file', str(params),
-         '-r', f'__ns:={namespace}', *extra],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-
-
-def stop(process: subprocess.Popen[str]) -> str:
-    process.send_signal(signal.SIGINT)
-    output, _ = process.communicate(timeout=30)
-    assert process.returncode == 0, output
-    return output
 
 
 def test_whole_graph_in_one_process_regulates_and_records(context, executor, spin_until,
                                                           tmp_path, fig8):
     namespace = f'/graph_{os.getpid()}'
     bag = tmp_path / 'realtime'
-    session_params = tmp_path / 'session.yaml'   # node-scoped values, as on the lathe PC
-    session_params.write_text(f'/**/pmc_bridge:\n  ros__parameters: {{armed: true}}\n'
-                              f'/**/session_recorder:\n  ros__parameters: {{output_dir: {bag}}}\n')
-    graph = start('turning_force_graph', namespace, fig8, '--params-file', str(session_params))
+    params = session_params(tmp_path / 'session.yaml', bag)
+    graph = start('turning_force_graph', namespace, fig8, '--params-file', str(params))
     try:
         probe = Node('probe', context=context)
         executor.add_node(probe)
