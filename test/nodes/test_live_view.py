@@ -5,6 +5,7 @@ the venv), and ``turning-force watch`` in a terminal that is not one (its last f
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import select
@@ -16,12 +17,20 @@ from pathlib import Path
 
 import pytest
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rosbags.highlevel import AnyReader
 from std_msgs.msg import Float64
+from turning_force_msgs.msg import CutRecord, ForceEstimate
 
 from graph_helpers import BIN, session_params, start, stop
 from turning_force.nodes.force_controller import REFERENCE_QOS
-from turning_force.nodes.live_view import BAND_SCHEMA, BAND_TOPIC, Throttle, view_topic
+from turning_force.nodes.live_view import (
+    BAND_SCHEMA,
+    BAND_TOPIC,
+    LiveViewNode,
+    Throttle,
+    view_topic,
+)
 from turning_force.nodes.session_recorder import GRAPH_TOPICS, msgtype
 from turning_force.session.bag import typestore
 from turning_force.session.codec import fields
@@ -158,6 +167,32 @@ def test_a_port_in_use_is_one_line_and_exit_2():
     assert result.returncode == 2, result.stderr
     assert re.search(rf'cannot serve on 127\.0\.0\.1:{port}: ', result.stderr), result.stderr
     assert 'Traceback' not in result.stderr
+
+
+def test_the_rate_thins_a_stream_and_passes_every_event(context, executor, spin_until):
+    # 50 estimates and 5 cut records published at once to a view forwarding 20 a second: it
+    # takes every one, forwards every cut record and at most one estimate per 50 ms of the
+    # time they took to arrive (one at the start).
+    view = LiveViewNode(context=context, parameter_overrides=[
+        Parameter('port', value=0), Parameter('rate_hz', value=20.0)])
+    probe = Node('probe', context=context)
+    executor.add_node(view)
+    executor.add_node(probe)
+    estimates = probe.create_publisher(ForceEstimate, 'force/estimate', 100)
+    cuts = probe.create_publisher(CutRecord, 'pmc/cuts', 100)
+    assert spin_until(lambda: estimates.get_subscription_count() and cuts.get_subscription_count())
+    start = time.monotonic()
+    for k in range(50):
+        estimates.publish(ForceEstimate(force_n=float(k)))
+    for k in range(5):
+        cuts.publish(CutRecord(index=k + 1))
+    diagnostics = view.diagnostics
+    assert spin_until(lambda: diagnostics.received_count('force/estimate') == 50
+                      and diagnostics.received_count('pmc/cuts') == 5)
+    elapsed_s = time.monotonic() - start
+    assert diagnostics.published_count('pmc/cuts') == 5
+    assert 1 <= diagnostics.published_count('force/estimate') <= 1 + math.ceil(elapsed_s * 20)
+    assert diagnostics.published_count('force/estimate') < 50
 
 
 @pytest.mark.parametrize(('rate_hz', 'passed'), [(0.0, 1000), (20.0, 200), (1000.0, 1000)])
