@@ -42,7 +42,7 @@ TRACE_WIDTH = 50
 REFRESH_S = 0.25   # the terminal view's redraw period [s]
 
 
-def view(namespace: str, settings: dict[str, Any], args: Sequence[str] = ()) -> int:
+def view(namespace: str, settings: dict[str, Any]) -> int:
     """Run the live view node until SIGINT or SIGTERM; print where it serves."""
     def make() -> list[Any]:
         node = LiveViewNode(namespace=namespace, parameter_overrides=[
@@ -51,7 +51,7 @@ def view(namespace: str, settings: dict[str, Any], args: Sequence[str] = ()) -> 
               'in Foxglove or Lichtblick: Open connection, Foxglove WebSocket, this address; '
               'layout: config/foxglove/turning_force.json', flush=True)
         return [node]
-    return run_nodes(make, ['--ros-args', *args] if args else [])
+    return run_nodes(make, [])
 
 
 def watch(namespace: str, duration_s: float | None, band_n: float,
