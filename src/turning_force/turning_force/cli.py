@@ -822,6 +822,30 @@ def _pmc_check(args: argparse.Namespace) -> int:
     return 0 if check_pmc(machine, sys.stdout, args.control_period_s, args.dwell_s) else 1
 
 
+def _band_n(args: argparse.Namespace) -> float:
+    """The band about the reference: the experiment's ``allowed_error_n``, else the default."""
+    from turning_force.core.experiment import ViewSettings
+
+    if args.experiment:
+        return load_experiment(args.experiment).run.allowed_error_n
+    return ViewSettings().allowed_error_n
+
+
+def _view(args: argparse.Namespace) -> int:
+    from turning_force.commands.live import view
+
+    return view(args.namespace, {'host': args.host, 'port': args.port, 'rate_hz': args.rate,
+                                 'allowed_error_n': _band_n(args)})
+
+
+def _watch(args: argparse.Namespace) -> int:
+    from turning_force.commands.live import watch
+
+    if args.duration is not None and not args.duration > 0:
+        raise TurningForceError(f'--duration {args.duration!r}: must be positive')
+    return watch(args.namespace, args.duration, _band_n(args))
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='turning-force', description=__doc__.split('\n')[0])
     commands = parser.add_subparsers(dest='command', required=True)
@@ -982,6 +1006,30 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument('--control-period-s', type=float, default=0.01,
                        help="the bridge's control period: the timeout when the file gives none")
     check.set_defaults(handler=_pmc_check)
+
+    def add_live(command: argparse.ArgumentParser) -> None:
+        command.add_argument('--namespace', default='/', help="the graph's namespace, as "
+                             "its nodes were started with (default /)")
+        command.add_argument('--experiment', metavar='FILE', help='the experiment the graph '
+                             'runs: the band about the reference is its allowed_error_n')
+
+    live = commands.add_parser('view', help="serve a running graph's topics to Foxglove or "
+                               'Lichtblick (Foxglove WebSocket)')
+    add_live(live)
+    live.add_argument('--host', default='127.0.0.1', help='address to bind to (default '
+                      '127.0.0.1: this machine only; 0.0.0.0: every interface, no password)')
+    live.add_argument('--port', type=int, default=8765, help='TCP port (default 8765, '
+                      "Foxglove's; 0: a free one, printed)")
+    live.add_argument('--rate', type=float, default=0.0, metavar='HZ', help='most messages a '
+                      'second on each streaming topic (default 0: every one)')
+    live.set_defaults(handler=_view)
+
+    term = commands.add_parser('watch', help="a running graph's force, override, gate and "
+                               'alarms in the terminal')
+    add_live(term)
+    term.add_argument('--duration', type=float, metavar='S', help='stop after S seconds '
+                      '(default: at Ctrl-C)')
+    term.set_defaults(handler=_watch)
     return parser
 
 

@@ -36,9 +36,19 @@ from turning_force.core.pmc.settings import BridgeSettings
 from turning_force.core.settings import Settings, setting
 from turning_force.core.yamlfile import load_yaml, read_text, yaml_error_text
 
-__all__ = ['Experiment', 'RecorderSettings', 'RunSettings', 'assignments', 'build_experiment',
-           'check_node', 'load_experiment', 'parameter_sections', 'parse_experiment',
-           'parse_set']
+__all__ = [
+    'Experiment',
+    'RecorderSettings',
+    'RunSettings',
+    'ViewSettings',
+    'assignments',
+    'build_experiment',
+    'check_node',
+    'load_experiment',
+    'parameter_sections',
+    'parse_experiment',
+    'parse_set',
+]
 
 SHARED = '/**'
 _T = TypeVar('_T')
@@ -60,9 +70,7 @@ class RunSettings(Settings):
     control_period_s: float = shared.control_period_s()
     settle_window_s: float = setting(1.0, 'Left out of the steady metrics after each change', 's',
                                      low=0.0, high=60.0)
-    allowed_error_n: float = setting(10.0, 'Allowed tracking error: the band of the settling '
-                                     'time and of the figures', 'N', low=0.0, low_open=True,
-                                     high=1e5)
+    allowed_error_n: float = shared.allowed_error_n()
     arm_bridge: bool = setting(True, 'The run arms the PMC bridge; false keeps it disarmed, the '
                                'machine at the programmed feed (an air cut for calibration). '
                                'pmc_bridge.armed, where a file gives it, says the same')
@@ -89,6 +97,29 @@ class RecorderSettings(Settings):
                                     low=0.0, low_open=True, high=3600.0)
     capture_parameters: bool = setting(True, 'Ask the graph nodes for their parameters and '
                                        'embed them')
+
+
+@dataclass(frozen=True)
+class ViewSettings(Settings):
+    """The ``live_view`` section: the Foxglove WebSocket server of ``turning-force view``.
+
+    It binds to this machine only unless ``host`` says otherwise: the protocol has no
+    authentication, and anyone who reaches the port sees the machine's signals.
+    """
+
+    SECTION = 'live_view'
+
+    host: str = setting('127.0.0.1', 'Address the WebSocket server binds to (0.0.0.0: every '
+                        'interface)')
+    port: int = setting(8765, 'TCP port of the WebSocket server; 0: a free one, printed',
+                        low=0, high=65535)
+    rate_hz: float = setting(0.0, 'Most messages a second forwarded on each streaming topic (one '
+                             'message a block); 0: every message', 'Hz', low=0.0, high=10000.0)
+    allowed_error_n: float = shared.allowed_error_n()
+
+    def check(self) -> None:
+        if not self.host.strip():
+            self.fail('host', 'must be an address to bind to (127.0.0.1, 0.0.0.0, a name)')
 
 
 @dataclass(frozen=True)
@@ -134,6 +165,7 @@ SETTINGS_OF: Mapping[str, type[Settings]] = {
 # Sections of nodes outside the control loop: validated, not part of an Experiment.
 OTHER_SECTIONS: Mapping[str, type[Settings]] = {
     'session_recorder': RecorderSettings,
+    'live_view': ViewSettings,
 }
 
 

@@ -13,6 +13,7 @@ from typing import Any
 from turning_force.core.settings import setting
 
 __all__ = [
+    'allowed_error_n',
     'control_period_s',
     'max_feed_force_n',
     'programmed_feed_mm_rev',
@@ -25,6 +26,12 @@ def control_period_s() -> Any:
     """One block of currents, one force estimate, one feed command (Park: 10 ms)."""
     return setting(0.01, 'Control period: one block of currents, one estimate, one command (Park: '
                    '10 ms)', 's', low=1e-4, high=1.0, cite='Park 1998, Sec. 2.3')
+
+
+def allowed_error_n() -> Any:
+    """The band about the reference that the metrics, the report and the live view draw."""
+    return setting(10.0, 'Allowed tracking error: the band of the settling time and of the '
+                   'figures', 'N', low=0.0, low_open=True)
 
 
 def spindle_speed_rpm() -> Any:

@@ -59,7 +59,8 @@ from turning_force.session.bag import (
     software_versions,
 )
 
-__all__ = ['GRAPH_TOPICS', 'SessionRecorderNode', 'main']
+__all__ = ['GRAPH_TOPICS', 'LATCHED_TOPICS', 'SessionRecorderNode', 'main', 'msgtype',
+           'topic_qos']
 
 GRAPH_TOPICS: dict[str, type] = {
     'servo/currents': ServoCurrents,
@@ -75,6 +76,15 @@ GRAPH_TOPICS: dict[str, type] = {
     '/diagnostics': DiagnosticArray,
     'force/measured': WrenchStamped,
 }
+
+# Published once, transient-local, so that a late joiner gets the last one (a latched topic).
+LATCHED_TOPICS = frozenset({'force/reference', SETTINGS_TOPIC})
+
+
+def topic_qos(topic: str) -> QoSProfile:
+    """The QoS a subscriber to one of :data:`GRAPH_TOPICS` takes: transient-local for the
+    latched ones, a queue of 100 for the others (a second of blocks at 10 ms)."""
+    return REFERENCE_QOS if topic in LATCHED_TOPICS else QoSProfile(depth=100)
 
 
 def msgtype(cls: type) -> str:
@@ -117,8 +127,8 @@ class SessionRecorderNode(Node):
         for topic, cls in GRAPH_TOPICS.items():
             name = self.resolve_topic_name(topic)
             self.writer.add_topic(name, msgtype(cls))
-            qos = REFERENCE_QOS if topic == 'force/reference' else QoSProfile(depth=100)
-            self.create_subscription(cls, topic, self._callback(name), qos, raw=True)
+            self.create_subscription(cls, topic, self._callback(name), topic_qos(topic),
+                                     raw=True)
         self._captured: dict[str, dict[str, Any]] = {}
         self._asking: set[str] = set()
         self._parameter_clients: dict[str, AsyncParameterClient] = {}

@@ -68,8 +68,8 @@ from turning_force.core.errors import ConfigError, TurningForceError
 
 __all__ = ['CUSTOM_END', 'CUSTOM_EXPERIMENT', 'CUSTOM_PARAMETERS', 'CUSTOM_PLANNED',
            'CUSTOM_RECORDING', 'CUSTOM_REPAIR', 'CUSTOM_STARTED', 'CUSTOM_VERSIONS',
-           'SETTINGS_TOPIC', 'SETTINGS_TYPE', 'BagError', 'SessionWriter', 'settings_message',
-           'settings_text', 'software_versions', 'stopped_by', 'typestore']
+           'SETTINGS_TOPIC', 'SETTINGS_TYPE', 'BagError', 'SessionWriter', 'schema',
+           'settings_message', 'settings_text', 'software_versions', 'stopped_by', 'typestore']
 
 CUSTOM_EXPERIMENT = 'turning_force.experiment_yaml'
 CUSTOM_PARAMETERS = 'turning_force.parameters_json'
@@ -132,6 +132,15 @@ def typestore() -> Typestore:
         raise BagError(f'no {MSG_PACKAGE} .msg files found under {_msg_dir()}')
     store.register(types)
     return store
+
+
+def schema(msgtype: str) -> tuple[str, str]:
+    """The ``ros2msg`` definition of ``msgtype`` (its fields, then those of every type it uses,
+    as rosbag2 writes them) and its RIHS01 hash, from :func:`typestore`: the schema a session's
+    MCAP file holds for a topic, and the one the live view advertises to Foxglove."""
+    store = typestore()
+    msgdef, _ = store.generate_msgdef(msgtype, ros_version=2)
+    return msgdef, store.hash_rihs01(msgtype)
 
 
 def software_versions() -> dict[str, str]:
@@ -395,7 +404,7 @@ class SessionWriter:
         """A topic of ``msgtype``, as our type store defines it, or as ``definition`` (message
         definition text, RIHS01 hash) does: a session rewritten keeps the definitions it was
         recorded with. ``latched``: offered transient-local."""
-        msgdef, rihs01 = definition if definition is not None else (None, None)
+        msgdef, rihs01 = definition if definition is not None else schema(msgtype)
         self._connections[topic] = self._quiet(
             lambda: self._writer.add_connection(topic, msgtype, typestore=self._typestore,
                                                 msgdef=msgdef, rihs01=rihs01,
