@@ -42,8 +42,9 @@ def test_whole_graph_in_one_process_regulates_and_records(context, executor, spi
     namespace = f'/graph_{os.getpid()}'
     bag = tmp_path / 'realtime'
     session_params = tmp_path / 'session.yaml'   # node-scoped values, as on the lathe PC
-    session_params.write_text(f'/**/pmc_bridge:\n  ros__parameters: {{armed: true}}\n'
-                              f'/**/session_recorder:\n  ros__parameters: {{output_dir: {bag}}}\n')
+    # No pmc_bridge.armed: the graph arms as `turning-force run` does (experiment.arm_bridge,
+    # true by default; issue 18 item 7).
+    session_params.write_text(f'/**/session_recorder:\n  ros__parameters: {{output_dir: {bag}}}\n')
     graph = start('turning_force_graph', namespace, fig8, '--params-file', str(session_params))
     try:
         probe = Node('probe', context=context)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ['ConfigError', 'NoCutError', 'TurningForceError']
+__all__ = ['ConfigError', 'NoCutError', 'TurningForceError', 'short_repr']
 
 
 class TurningForceError(Exception):
@@ -18,3 +18,14 @@ class ConfigError(TurningForceError, ValueError):
 
     The message names the key (``section.name``) and the bad value, and says what was expected.
     """
+
+
+def short_repr(value: object, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for an error line that names a bad value
+    (a value of megabytes is named by its start and its length, never echoed whole)."""
+    if isinstance(value, str | bytes | list | tuple):
+        text = repr(value[:limit + 1])
+        length = f' ({len(value)} long)'
+    else:
+        text, length = repr(value), ''
+    return text if len(text) <= limit else f'{text[:limit]}...{length}'

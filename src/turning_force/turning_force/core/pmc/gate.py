@@ -35,7 +35,8 @@ G_ENGAGE, G_EXIT, G_DEBOUNCE, G_REACT_FRACTION, G_REACT_NEEDED, G_REACTION = ran
 G_SETTLE, G_WINDOW, G_SPIKE, G_DROP, G_PE_REQUIRED, G_THREAD_SD, G_DIAL_MODE = range(14, 21)
 G_RISE, G_FLOOR, G_AIR, G_TEACH, G_TEACH_FRACTION = range(21, 26)
 G_RECENT_AT, G_PENDING_AT, G_PENDING_CAP, G_WINDOW_AT = range(26, 30)
-G_SIZE = 30
+G_HAND_BACK = 30
+G_SIZE = 31
 REACTION_NONE, REACTION_ALARM, REACTION_STOP, REACTION_HOLD = 0, 1, 2, 3
 DIAL_MIN, DIAL_PRODUCT, DIAL_IGNORE = 0, 1, 2
 # hold causes (the overload hold's detail): saturated, not finite, above the limit
@@ -422,7 +423,7 @@ def _judge(gp: np.ndarray, gs: np.ndarray, t: float, dec: np.ndarray) -> None:
         dec[DEC_DIALLED] = math.nan
         return
     if gs[GS_ARMED] == 0.0:
-        _dialled(gp, gs, dec, 100.0, DISARMED, GD_DISARMED)
+        _dialled(gp, gs, dec, gp[G_HAND_BACK], DISARMED, GD_DISARMED)
         return
     if gs[GS_CMD_T] < gs[GS_ARMED_T]:   # nothing since arming
         waited = t - gs[GS_ARMED_T]
@@ -738,7 +739,8 @@ class OverrideGate:
             return self._hold_text() + again
         texts = {
             GD_NONE: '',
-            GD_DISARMED: 'not armed: programmed feed',
+            GD_DISARMED: ('not armed: programmed feed' if s.hand_back_pct >= 100.0
+                          else f'not armed: the hand-back level ({s.hand_back_pct:g} %)'),
             GD_WAITING: 'armed, waiting for the first feed command',
             GD_NO_COMMAND: f'no feed command in {a:.3f} s since arming',
             GD_STALE: f'feed command {a:.3f} s old (watchdog {s.watchdog_period_s:g} s)',
@@ -848,6 +850,7 @@ def _gate_params(s: BridgeSettings, table: OverrideTable) -> FloatArray:
     p[G_RISE], p[G_FLOOR] = s.rise_rate_pct_s, s.min_cut_override_pct
     p[G_AIR], p[G_TEACH] = s.air_cut_override_pct, s.teach_in
     p[G_TEACH_FRACTION] = s.teach_fraction
+    p[G_HAND_BACK] = s.hand_back_pct
     p[G_RECENT_AT] = GS_FIXED
     p[G_PENDING_AT] = GS_FIXED + BLOCK_FIELDS * debounce
     p[G_PENDING_CAP] = debounce + settle
