@@ -4,6 +4,8 @@ contract (docs/safety.md) checked against the whole history of the module's coil
 
 from __future__ import annotations
 
+import itertools
+import os
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -23,6 +25,7 @@ from turning_force.core.pmc.machine import Machine
 from turning_force.nodes.pmc_bridge import PmcBridgeNode
 
 DIAL_INPUTS = 2   # config/machines/fanuc_0t.yaml: the operator's dial on discrete inputs 2-5
+_RIGS = itertools.count()
 
 
 class WallClock:
@@ -48,6 +51,7 @@ class Driver:
         self.executor = executor
         self.overrides: list[FeedOverride] = []
         self.diagnostics: list[str] = []
+        self._status = f'{namespace}/pmc_bridge'
         self.node.create_subscription(FeedOverride, f'{namespace}/pmc/feed_override',
                                       self.overrides.append, 100)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
@@ -56,7 +60,7 @@ class Driver:
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
-            if status.name.endswith('pmc_bridge'):
+            if status.name == self._status:
                 self.diagnostics.append(status.message)
                 self.diagnostics.extend(f'{v.key}={v.value}' for v in status.values)
 
@@ -97,6 +101,7 @@ class Rig:
     proxy: FaultProxy
     machine: Machine
     path: Path
+    namespace: str   # of this rig's graph: another test's graph on the domain is not heard
     bridges: list[PmcBridgeNode] = field(default_factory=list)
 
     def set_dial(self, pct: float) -> None:
@@ -112,10 +117,15 @@ class Rig:
         return [(w.t_s, self.machine.table.decode(config.bits_from(w.values)))
                 for w in self.module.writes(config.first_coil)]
 
+    def driver(self, context: Any, executor: Any, namespace: str = '') -> Driver:
+        """A driver for the bridge in ``namespace`` (under the rig's own)."""
+        return Driver(context, executor, self.namespace + namespace)
+
     def bridge(self, context: Any, executor: Any, namespace: str = '',
                **parameters: Any) -> PmcBridgeNode:
         values = {'machine_file': str(self.path), 'backend': 'modbus_tcp', **parameters}
-        node = PmcBridgeNode(autostart=True, context=context, namespace=namespace or None,
+        node = PmcBridgeNode(autostart=True, context=context,
+                             namespace=self.namespace + namespace,
                              parameter_overrides=[Parameter(k, value=v)
                                                   for k, v in values.items()])
         executor.add_node(node)
@@ -132,9 +142,11 @@ def rig(tmp_path: Path, plan: Plan | None = None, **backend: Any) -> Iterator[Ri
     proxy = FaultProxy(port, plan or (lambda index, function_code: 'pass'))
     try:
         proxy_port = proxy.start()
-        settings = {'timeout_s': 0.05, 'readback_address': None, **backend}
+        settings = {'timeout_s': 0.1, 'readback_address': None, 'max_missed_periods': 3,
+                    **backend}
         path = write_machine(tmp_path / 'm.yaml', port=proxy_port, **settings)
-        the_rig = Rig(module, proxy, local_machine(port=proxy_port, **settings), path)
+        the_rig = Rig(module, proxy, local_machine(port=proxy_port, **settings), path,
+                      f'/rig_{os.getpid()}_{next(_RIGS)}')
         yield the_rig
     finally:
         for node in the_rig.bridges if 'the_rig' in locals() else ():

@@ -69,12 +69,13 @@ class Module:
         return [w for w in self.bank.history if w.address == address]
 
 
-def random_plan(seed: int, rate: float, faults: tuple[str, ...] = FAULTS[1:]) -> Plan:
-    """Each answer faulted with probability ``rate``, the fault drawn from ``faults``; the
-    same seed gives the same faults answer by answer."""
+def random_plan(seed: int, rate: float, faults: tuple[str, ...] = FAULTS[1:],
+                first: int = 0) -> Plan:
+    """Each answer from the ``first`` on faulted with probability ``rate``, the fault drawn
+    from ``faults``; the same seed gives the same faults answer by answer."""
     def plan(index: int, function_code: int) -> str:
         draw = random.Random(seed * 1_000_003 + index)
-        return draw.choice(faults) if draw.random() < rate else 'pass'
+        return draw.choice(faults) if index >= first and draw.random() < rate else 'pass'
     return plan
 
 
@@ -124,6 +125,7 @@ class FaultProxy:
 
     def _run(self, started: Future[int]) -> None:
         loop = asyncio.new_event_loop()
+        asyncio.set_event_loop(loop)
         self._loop = loop
         server = loop.run_until_complete(asyncio.start_server(self._client, '127.0.0.1', 0))
         self._server = server
@@ -132,9 +134,10 @@ class FaultProxy:
             loop.run_forever()
         finally:
             server.close()
-            for task in list(self._tasks):
+            tasks = list(self._tasks)
+            for task in tasks:
                 task.cancel()
-            loop.run_until_complete(asyncio.sleep(0))
+            loop.run_until_complete(asyncio.gather(*tasks, return_exceptions=True))
             loop.close()
 
     async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:

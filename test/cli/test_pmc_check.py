@@ -45,7 +45,7 @@ def test_every_level_is_written_and_read_back(capfd, server, tmp_path):
     # then (U6: never a pattern for 150 %).
     assert ("module's watchdog: set its fieldbus timeout to 100 ms (module_watchdog_s) with "
             'every output off on timeout (0000): the PMC then reads 0 %, at or below the '
-            'hand-back level (100 %); the bridge faults first, after 3 missed periods (30 ms)'
+            'hand-back level (100 %); the bridge faults first, after 8 missed periods (80 ms)'
             in out)
     assert '150 %' not in out.split('all 16 levels')[1]
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import pytest
 from turning_force_msgs.msg import FeedOverride
 
-from bridge_harness import Driver, WallClock, rig
+from bridge_harness import WallClock, rig
 from faultproxy import Module
 
 # Generous for a loaded 2-core machine: the tests are about what reaches the coils.
@@ -26,7 +26,7 @@ def test_u1_the_hand_back_never_exceeds_its_level_whatever_the_dial_reads(
     # The dial's four inputs all off: on the 0-T's table the code for 150 %, which an unwired
     # dial cannot be told from. 3638a43 wrote 150 % at stop, even never armed.
     with rig(tmp_path) as the_rig:
-        driver = Driver(context, executor)
+        driver = the_rig.driver(context, executor)
         the_rig.module.bank.set_discrete_inputs(2, [False] * 4)
         bridge = the_rig.bridge(context, executor, hand_back_pct=hand_back_pct)
         driver.run(0.3, pct=120.0)
@@ -46,7 +46,7 @@ def test_u2_arm_is_refused_during_a_fault_and_the_bridge_stays_disarmed_after(
         context, executor, tmp_path):
     dead = {'on': False}
     with rig(tmp_path, plan=lambda i, fc: 'close' if dead['on'] else 'pass') as the_rig:
-        driver = Driver(context, executor)
+        driver = the_rig.driver(context, executor)
         the_rig.set_dial(100.0)
         bridge = the_rig.bridge(context, executor, armed=True, watchdog_period_s=WATCHDOG_S)
         assert driver.until(lambda: driver.overrides and
@@ -77,7 +77,7 @@ def test_u3_a_malformed_answer_is_a_fault_never_an_exception(context, executor, 
     # FeedOverride and /diagnostics, stays alive (an exception would leave spin_once), and
     # comes back disarmed.
     with rig(tmp_path, plan=lambda i, fc: fault if 40 <= i < 43 else 'pass') as the_rig:
-        driver = Driver(context, executor)
+        driver = the_rig.driver(context, executor)
         the_rig.set_dial(100.0)
         bridge = the_rig.bridge(context, executor, armed=True, watchdog_period_s=WATCHDOG_S)
         assert driver.until(lambda: any(m.reason == FeedOverride.REASON_IO_FAULT
@@ -95,7 +95,7 @@ def test_u3_a_malformed_answer_is_a_fault_never_an_exception(context, executor, 
 
 def test_u4_two_bridges_on_one_module_both_refuse(context, executor, tmp_path):
     with rig(tmp_path, owner_register=10) as the_rig:
-        first_driver = Driver(context, executor, '/first')
+        first_driver = the_rig.driver(context, executor, '/first')
         the_rig.set_dial(100.0)
         first = the_rig.bridge(context, executor, '/first', armed=True,
                                watchdog_period_s=WATCHDOG_S)
@@ -117,7 +117,7 @@ def test_u4_two_bridges_on_one_module_both_refuse(context, executor, tmp_path):
 def test_u4_without_an_owner_register_the_coils_changing_under_a_bridge_is_found(
         context, executor, tmp_path):
     with rig(tmp_path) as the_rig:
-        driver = Driver(context, executor, '/first')
+        driver = the_rig.driver(context, executor, '/first')
         the_rig.set_dial(100.0)
         first = the_rig.bridge(context, executor, '/first', armed=True,
                                watchdog_period_s=WATCHDOG_S)
@@ -132,7 +132,7 @@ def test_u5_the_watchdog_does_not_read_the_wall_clock(context, executor, tmp_pat
                                                       monkeypatch, step_s):
     wall = WallClock(monkeypatch)
     with rig(tmp_path) as the_rig:
-        driver = Driver(context, executor)
+        driver = the_rig.driver(context, executor)
         the_rig.set_dial(100.0)
         bridge = the_rig.bridge(context, executor, armed=True, watchdog_period_s=WATCHDOG_S)
         assert driver.until(lambda: driver.overrides and

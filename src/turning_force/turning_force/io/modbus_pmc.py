@@ -272,11 +272,17 @@ class ModbusPmc:
         back-off starts)."""
         if self.refused:
             return self.refused
-        try:
-            self._open()
-        except _Fault as exc:
-            return self._failed(exc)
-        return ''
+        for attempt in range(1, self.config.max_missed_periods + 1):
+            try:
+                self._open()
+                return ''
+            except _Fault as exc:   # no answer in time: again, within the miss budget
+                if not exc.miss or attempt == self.config.max_missed_periods:
+                    return self._failed(exc)
+                self.misses += 1
+                self.retries += 1
+                self._link.close()
+        raise AssertionError('unreachable')
 
     def _open(self) -> None:
         """Connect, claim the module, read the inputs (the dial bounds the first write too),
@@ -383,22 +389,27 @@ class ModbusPmc:
 
     def _check_owner(self) -> None:
         """Another bridge on the module is a refusal: the owner token is not ours, or the
-        override coils hold a pattern this bridge did not write."""
+        override coils hold a pattern this bridge did not write, read so twice (one corrupted
+        answer is a fault, not a second bridge)."""
         register, link = self.config.owner_register, self._link
         if register is None:
             written = self._coils_written
             if written is None:
                 return
-            now = link.bits('read override before writing', link.client.read_coils,
-                            self.config.readback_first, len(written), 1)
-            if now != written:
+
+            def coils() -> list[bool]:
+                return link.bits('read override before writing', link.client.read_coils,
+                                 self.config.readback_first, len(written), 1)
+
+            now = coils()
+            if now != written and coils() == now:
                 raise _Fault(f'override coils read {pattern_text(now)}, this bridge wrote '
                              f'{pattern_text(written)}: another writer on the module; '
                              'refusing (stop the other bridge, then restart this one)',
                              refuse=True)
             return
         owner = self._owner()
-        if owner == self.token:
+        if owner == self.token or self._owner() == self.token:
             return
         if owner != CONFLICT:
             link.write('mark conflict', 6, link.client.write_register, register, CONFLICT)

@@ -52,7 +52,13 @@ from turning_force.core.pmc.gate import OverrideGate
 from turning_force.core.pmc.machine import Machine, load_machine
 from turning_force.core.pmc.overrides import OverrideTable
 from turning_force.core.pmc.settings import BridgeSettings, Decision, Reason
-from turning_force.core.pmc.shopfloor import NO_INPUTS, Learned, save_teach_file, taught_reference
+from turning_force.core.pmc.shopfloor import (
+    NO_INPUTS,
+    InputValues,
+    Learned,
+    save_teach_file,
+    taught_reference,
+)
 from turning_force.nodes.convert import (
     cut_to_msg,
     estimate_from_msg,
@@ -107,6 +113,7 @@ class PmcBridgeNode(LifecycleNode):
         self.backend: Any = None        # SimulatedPmc or ModbusPmc once configured
         self.inputs: Any = None         # InputValues from the module, once read
         self._module_inputs = NO_INPUTS  # those of the module's inputs the machine file wires
+        self._dial_read: float | None = None   # the dial as last read (raised when confirmed)
         self._topic_inputs = NO_INPUTS   # machine/inputs (the simulated machine's)
         self.cuts: list[CutRecord] = []  # the cuts published on pmc/cuts
         self._gate_outputs: dict[str, bool] = {}   # the outputs as the gate last set them
@@ -548,12 +555,11 @@ class PmcBridgeNode(LifecycleNode):
         result = backend.write(decision.code, decision.bits)
         if result.missed:
             return self._missed(decision, result.missed)
-        self.inputs = result.inputs
-        self._module_inputs = result.inputs
+        if not result.ok:   # the inputs as they were: none were read
+            return self._fault(decision, result.fault)
+        self.inputs = self._module_inputs = self._confirmed(result.inputs)
         self._take_inputs()   # for the next decision: these were read after this one
         self._report_inputs()
-        if not result.ok:
-            return self._fault(decision, result.fault)
         self.diagnostics.set_value('io_round_trip_ms', f'{result.round_trip_s * 1e3:.2f}')
         self._count_misses()
         if self.io_fault:
@@ -565,6 +571,16 @@ class PmcBridgeNode(LifecycleNode):
         seen = replace(decision, applied_pct=self.table.decode(result.bits), bits=result.bits)
         self._last_exchanged = seen
         return seen
+
+    def _confirmed(self, inputs: InputValues) -> InputValues:
+        """The module's inputs, the operator's dial raised only once two reads in a row agree
+        (lowered at once): one corrupted answer must not raise the feed."""
+        dial, last = inputs.operator_dial_pct, self._dial_read
+        self._dial_read = dial
+        held = self._module_inputs.operator_dial_pct
+        if dial is None or held is None or dial <= held or dial == last:
+            return inputs
+        return replace(inputs, operator_dial_pct=held)
 
     def _count_misses(self) -> None:
         backend = self.backend
