@@ -141,3 +141,23 @@ def test_a_machine_without_a_module(capfd, tmp_path):
     machine.write_text('override_table: fanuc_0t_4bit\n')
     code, _, err = check(capfd, machine)
     assert code == 2 and "backend.type = 'simulated': no module to check" in err
+
+
+@pytest.mark.parametrize('fault', ['short', 'wrong_function', 'empty', 'exception'])
+def test_a_malformed_answer_is_a_failed_level_not_a_traceback(capfd, tmp_path, fault):
+    # pyModbusTCP's server behind the fault proxy: the fifth answer malformed.
+    from faultproxy import FaultProxy, Module
+
+    module = Module()
+    proxy = FaultProxy(module.start(), lambda index, code: fault if index == 5 else 'pass')
+    try:
+        machine = write_machine(tmp_path / 'm.yaml', port=proxy.start(), timeout_s=0.2,
+                                readback_address=None, max_missed_periods=1)
+        code, out, err = check(capfd, machine)
+    finally:
+        proxy.stop()
+        module.stop()
+    assert code == 1 and 'Traceback' not in out + err
+    failed = [line for line in out.splitlines() if line.startswith('FAILED at level')]
+    assert len(failed) == 1 and any(word in failed[0] for word in (
+        'malformed answer', 'refused, exception code 4', 'no answer within', 'read back'))

@@ -17,6 +17,7 @@ history checked against the safety contract (docs/safety.md):
 
 from __future__ import annotations
 
+import math
 import random
 import time
 from dataclasses import dataclass
@@ -101,8 +102,16 @@ def run_case(context, executor, tmp_path, monkeypatch, c: Case) -> None:
         stop_s = time.monotonic()
         bridge.stop()
         writes = the_rig.override_writes()   # decoding raises on a pattern that is no level
-    handed_back = min(c.hand_back_pct, c.dial_pct)
-    armed_bound = min(MAX_REQUEST_PCT, c.dial_pct)
+    # The dial as the bridge read it: a module that answers a wrong dial the same way twice
+    # in a row (a deterministic corruption) is read as the operator turning it; every
+    # FeedOverride records the dial its decision saw, and never goes above it.
+    read = [m.operator_dial_pct for m in driver.overrides if math.isfinite(m.operator_dial_pct)]
+    dial = max([c.dial_pct, *read])
+    handed_back = min(c.hand_back_pct, dial)
+    armed_bound = min(MAX_REQUEST_PCT, dial)
+    for msg in driver.overrides:
+        if math.isfinite(msg.operator_dial_pct) and msg.reason != FeedOverride.REASON_IO_FAULT:
+            assert msg.applied_pct <= msg.operator_dial_pct, (msg.applied_pct, msg.detail)
     assert writes, 'nothing reached the module'
     assert writes[0][1] <= handed_back, f'configure wrote {writes[0][1]} %'
     for t_s, pct in writes:

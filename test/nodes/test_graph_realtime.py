@@ -75,7 +75,7 @@ def test_whole_graph_in_one_process_regulates_and_records(context, executor, spi
     assert {f'{namespace}/{n}' for n in NODES} <= names   # every node reports
     # The recorder asked the running nodes for their parameters and embedded them.
     assert 'recorded parameters' in session.experiment.source
-    assert session.experiment.bridge.armed          # from the session's own params file
+    assert session.experiment.bridge.armed   # armed as `run` arms it (experiment.arm_bridge)
     assert session.experiment.controller.smc_epsilon_n == 200.0   # from park1998_fig8.yaml
 
 

@@ -88,6 +88,9 @@ def test_u3_a_malformed_answer_is_a_fault_never_an_exception(context, executor, 
             'malformed answer', 'refused, exception code 4', 'read back', 'no answer within',
             'operator dial'))
         assert driver.until(lambda: any('IO_FAULT' in d for d in driver.diagnostics))
+        if fault in ('empty', 'truncate'):   # no whole answer in time: misses, then the fault
+            assert driver.until(lambda: any(d.startswith('io_misses=') for d in
+                                            driver.diagnostics))
         assert driver.until(lambda: not bridge.io_fault and
                             driver.last().reason == FeedOverride.REASON_DISARMED)
         assert max(levels(the_rig)[-3:]) <= 100.0
