@@ -36,22 +36,24 @@ def stop(process: subprocess.Popen[str]) -> str:
     return output
 
 
-def session_params(path: Path, bag: Path, recorder: str = '') -> Path:
-    """A params file that arms the bridge and records to ``bag`` (node-scoped values, as on
-    the lathe PC; ``recorder``: more entries of the recorder's section), written to ``path``."""
-    path.write_text(f'/**/pmc_bridge:\n  ros__parameters: {{armed: true}}\n'
-                    f'/**/session_recorder:\n  ros__parameters: {{output_dir: {bag}'
+def session_params(path: Path, bag: Path, recorder: str = '', arm: bool = True) -> Path:
+    """A params file that records to ``bag`` and, with ``arm``, arms the bridge (node-scoped
+    values, as on the lathe PC; ``recorder``: more entries of the recorder's section), written
+    to ``path``."""
+    path.write_text(('/**/pmc_bridge:\n  ros__parameters: {armed: true}\n' if arm else '')
+                    + f'/**/session_recorder:\n  ros__parameters: {{output_dir: {bag}'
                     f'{", " + recorder if recorder else ""}}}\n')
     return path
 
 
 def record_regulated(context: Any, executor: Any, spin_until: Callable[..., bool],
                      experiment: Path, bag: Path, namespace: str, blocks: int,
-                     recorder: str = '') -> None:
-    """``turning_force_graph`` on ``experiment``, armed, recording to ``bag`` (plus the
+                     recorder: str = '', arm: bool = True) -> None:
+    """``turning_force_graph`` on ``experiment``, recording to ``bag`` (plus the
     ``recorder`` entries of its section, e.g. ``experiment_file: ...``), until ``blocks``
-    overrides were written for the regulated reason; then stopped."""
-    params = session_params(bag.parent / f'{bag.name}_session.yaml', bag, recorder)
+    overrides were written for the regulated reason; then stopped. ``arm``: armed by the params
+    file (else as the experiment file says)."""
+    params = session_params(bag.parent / f'{bag.name}_session.yaml', bag, recorder, arm)
     graph = start('turning_force_graph', namespace, experiment, '--params-file', str(params))
     try:
         probe = Node('probe', context=context)

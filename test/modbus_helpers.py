@@ -28,6 +28,14 @@ def local_machine(name: str = 'fanuc_0t.yaml', port: int = 5020, **backend: Any)
     return parse_machine(machine_yaml(name, port, **backend), f'{name} on 127.0.0.1:{port}')
 
 
+def coil_pattern(pct: float, name: str = 'fanuc_0t.yaml') -> list[bool]:
+    """The override coils that set ``pct`` on a shipped machine's wiring (the 0-T's inverted
+    logic: every coil off is 0 %)."""
+    machine = local_machine(name)
+    assert machine.modbus is not None
+    return machine.modbus.coils_for(machine.table.encode(pct)[1])
+
+
 def write_machine(path: Path, name: str = 'fanuc_0t.yaml', port: int = 5020,
                   **backend: Any) -> Path:
     path.write_text(yaml.safe_dump(machine_yaml(name, port, **backend)))
@@ -43,7 +51,8 @@ class ServerProcess:
             args += ['--machine', str(machine_file)]
         self.process = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                         text=True)
-        self.port = int(self._line(timeout_s=30.0).split()[1])
+        self.line = self._line(timeout_s=30.0)
+        self.port = int(self.line.split()[1].rstrip(':'))
 
     def _line(self, timeout_s: float) -> str:
         stdout = self.process.stdout

@@ -18,7 +18,7 @@ MACHINES = Path(__file__).resolve().parents[2] / 'config' / 'machines'
 def machine_data(**backend) -> dict:
     data = {'name': 'test', 'override_table': 'fanuc_0t_4bit',
             'backend': {'type': 'modbus_tcp', 'host': '127.0.0.1', 'port': 5020,
-                        'override_coils': [0, 1, 2, 3]}}
+                        'override_coils': [0, 1, 2, 3], 'module_watchdog_s': 0.1}}
     data['backend'].update(backend)
     return data
 
@@ -26,7 +26,7 @@ def machine_data(**backend) -> dict:
 def test_the_shipped_machines_load():
     zero_t = load_machine(MACHINES / 'fanuc_0t.yaml')
     assert zero_t.table is get_table('fanuc_0t_4bit') and zero_t.backend == 'modbus_tcp'
-    assert zero_t.modbus.override_coils == (0, 1, 2, 3) and zero_t.modbus.logic == 'direct'
+    assert zero_t.modbus.override_coils == (0, 1, 2, 3) and zero_t.modbus.logic == 'inverted'
     assert zero_t.modbus.readback_first == 512   # a WAGO 750-352's output image
     assert zero_t.inputs.operator_dial.table is get_table('fanuc_0t_4bit')
     assert zero_t.outputs.points() == {'alarm': DigitalPoint(4), 'stop_request': DigitalPoint(5)}
@@ -90,7 +90,19 @@ def test_a_simulated_machine_has_only_a_table():
     ({'override_coils': [0, 1, 1, 2]},
      r'backend.override_coils = \[0, 1, 1, 2\]: an address is used twice'),
     ({'logic': 'negative'}, r"backend.logic = 'negative': expected one of direct, inverted"),
-    ({'fail_safe_pct': 105.0}, r'backend.fail_safe_pct = 105.0: not a level of fanuc_0t_4bit'),
+    ({'fail_safe_pct': 105.0}, r'backend.fail_safe_pct = 105.0: expected a finite number in '
+                               r'\[0, 100\]'),
+    # U6: the module's watchdog level cannot be set above the programmed feed.
+    ({'fail_safe_pct': 150.0}, r'backend.fail_safe_pct = 150.0: expected a finite number in '
+                               r'\[0, 100\]'),
+    ({'fail_safe_pct': 55.0}, r'backend.fail_safe_pct = 55.0: not a level of fanuc_0t_4bit'),
+    ({'module_watchdog_s': None}, r"backend.module_watchdog_s = None: missing: the module's own"),
+    ({'module_watchdog_s': 5.0},
+     r'backend.module_watchdog_s = 5.0: expected a finite number in \(0, 1\]'),
+    ({'max_missed_periods': 0}, r'backend.max_missed_periods = 0: expected an integer 1 to 100'),
+    # A 4 MB value is named by its start and length, never echoed whole.
+    ({'logic': 'x' * 4_000_000}, r"backend.logic = 'x{50,60}\.\.\. \(4000000 long\): expected one "
+                                 r'of direct, inverted$'),
     ({'timeout_s': 0.0}, r'backend.timeout_s = 0.0: expected a finite number in \(0, 10\]'),
     ({'reconnect_max_s': 0.01}, r'backend.reconnect_max_s = 0.01: below reconnect_min_s'),
     ({'hots': 'x'}, r"backend: unknown keys \['hots'\]"),
@@ -144,3 +156,41 @@ def test_a_missing_or_broken_file_is_named(tmp_path):
     bad.write_text(yaml.safe_dump(['not', 'a', 'mapping']))
     with pytest.raises(ConfigError, match=r'bad.yaml: expected a mapping, got list'):
         load_machine(bad)
+
+
+def test_the_shipped_wiring_is_safe_when_de_energised():
+    # Every output off (the module's watchdog, a dead PC, lost 24 V): the PMC reads 0 % on
+    # both shipped machines, at or below any hand-back level.
+    for name in ('fanuc_0t.yaml', 'fanuc_0i_8bit.yaml'):
+        machine = load_machine(MACHINES / name)
+        assert machine.all_off_pct() == 0.0
+        machine.check_de_energised(0.0)
+        # The module's watchdog must outlast the miss budget at the 10 ms period.
+        machine.modbus.check_miss_budget(0.01, name)
+
+
+def test_direct_logic_on_the_four_bit_table_is_refused_with_the_reason():
+    # U1/item 2: on fanuc_0t_4bit every signal off is the code for 150 %: with direct logic a
+    # module that drops its outputs would run the feed at 150 %.
+    machine = parse_machine(machine_data(logic='direct'), 'm.yaml')
+    assert machine.all_off_pct() == 150.0
+    with pytest.raises(ConfigError, match=r"^m.yaml: backend.logic = 'direct': with every output "
+                                          r'off \(0000: module watchdog, PC or 24 V lost\) the '
+                                          r'PMC reads 150 % on fanuc_0t_4bit, above the hand-back '
+                                          r'level \(100 %\); wire it so that off is safe '
+                                          r'\(logic: inverted'):
+        machine.check_de_energised(100.0)
+    inverted = parse_machine(machine_data(logic='inverted', fail_safe_pct=0.0), 'm.yaml')
+    inverted.check_de_energised(0.0)
+    with pytest.raises(ConfigError, match=r'backend.fail_safe_pct = 100: above the hand-back '
+                                          r'level \(50 %\)'):
+        parse_machine(machine_data(logic='inverted'), 'm.yaml').check_de_energised(50.0)
+
+
+def test_the_miss_budget_stays_inside_the_modules_watchdog():
+    machine = parse_machine(machine_data(max_missed_periods=10), 'm.yaml')
+    with pytest.raises(ConfigError, match=r'^m.yaml: backend.max_missed_periods = 10: 10 x the '
+                                          r'10 ms control period = 100 ms, not below '
+                                          r'backend.module_watchdog_s = 100 ms$'):
+        machine.modbus.check_miss_budget(0.01, 'm.yaml')
+    machine.modbus.check_miss_budget(0.005, 'm.yaml')   # 50 ms < 100 ms

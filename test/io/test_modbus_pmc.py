@@ -86,7 +86,8 @@ def test_a_read_back_that_differs_is_a_fault(served):
     assert pmc.connect() == ''
     result = pmc.write(*machine.table.encode(100.0))
     assert not result.ok and result.bits == ()
-    assert result.fault.endswith('read back 0000, wrote 1010') and not pmc.connected
+    # 100 %: code 10, active low: signals 1010 from bit 0; inverted wiring: coils 0101.
+    assert result.fault.endswith('read back 0000, wrote 0101') and not pmc.connected
 
 
 def test_a_pattern_that_is_not_a_level_is_never_sent(served):
@@ -147,14 +148,21 @@ def test_a_server_that_refuses_writes(served):
 def test_a_server_that_answers_late(served):
     server, machine_on = served
     clock = Clock()
-    pmc = ModbusPmc(machine_on(timeout_s=0.05), 0.01, clock=clock)
+    pmc = ModbusPmc(machine_on(timeout_s=0.05, max_missed_periods=3), 0.01, clock=clock)
     assert pmc.connect() == ''
     table = get_table('fanuc_0t_4bit')
     assert pmc.write(*table.encode(60.0)).ok
     server.latency_s = 0.5   # ten times the timeout
+    # A miss is not a fault: the next period tries again on a fresh connection (a late answer
+    # must not answer the next request), until three in a row.
+    for k in (1, 2):
+        result = pmc.write(*table.encode(70.0))
+        assert not result.ok and result.fault == '' and result.bits == ()
+        assert result.missed.endswith(f': no answer within 50.0 ms (miss {k} of 3 allowed in a '
+                                      'row)')
     result = pmc.write(*table.encode(70.0))
-    assert result.fault.endswith('write override: no answer within 50.0 ms')
-    assert not pmc.connected
+    assert result.fault.endswith(': no answer within 50.0 ms; 3 periods in a row')
+    assert not pmc.connected and (pmc.misses, pmc.retries, pmc.faults) == (3, 2, 1)
     # Answering in time again: after the back-off, a new connection, whose answers are its own
     # (the late answer went with the old connection).
     server.latency_s = 0.0
@@ -162,6 +170,7 @@ def test_a_server_that_answers_late(served):
     clock.now = 0.1
     assert pmc.reconnect_due() and pmc.connect() == ''
     assert pmc.write(*table.encode(80.0)).bits == table.encode(80.0)[1]
+    assert pmc.missed_in_row == 0
 
 
 def test_the_default_timeout_is_one_control_period(served):
@@ -217,3 +226,20 @@ def test_a_machine_file_served_by_a_separate_process_mirrors_its_read_back(tmp_p
             assert CoilReader(machine).read_pct() == level
     finally:
         server.stop()
+
+
+def test_the_pmc_server_says_where_it_listens_and_refuses_bad_ports_in_one_line():
+    import subprocess
+    import sys
+
+    server = ServerProcess()
+    try:
+        assert server.line.strip() == f'port {server.port}: listening on 127.0.0.1:{server.port}'
+    finally:
+        server.stop()
+    for port in ('-5', '99999', 'x' * 100_000):
+        done = subprocess.run([sys.executable, '-m', 'turning_force.io.pmc_server', '--port',
+                               port], capture_output=True, text=True, timeout=60)
+        assert done.returncode == 2 and 'Traceback' not in done.stderr
+        assert done.stderr.strip().endswith('expected a port, 0 to 65535')
+        assert len(done.stderr) < 1000

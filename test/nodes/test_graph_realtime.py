@@ -22,8 +22,10 @@ def test_whole_graph_in_one_process_regulates_and_records(context, executor, spi
                                                           tmp_path, fig8):
     namespace = f'/graph_{os.getpid()}'
     bag = tmp_path / 'realtime'
-    # Four seconds of cutting: 1 mm depth until the first step of Fig. 8 at 4 s.
-    record_regulated(context, executor, spin_until, fig8, bag, namespace, 400)
+    # Four seconds of cutting: 1 mm depth until the first step of Fig. 8 at 4 s. No
+    # pmc_bridge.armed: the graph arms as `turning-force run` does (experiment.arm_bridge, true
+    # by default; issue 18 item 7).
+    record_regulated(context, executor, spin_until, fig8, bag, namespace, 400, arm=False)
     session = read_session(bag)
     t, force = session.t_s - session.blocks[0].t0_s, session.signals['force_n']
     # Every block's truth is found by its stamp (the last may be cut off by the stop).
@@ -42,7 +44,7 @@ def test_whole_graph_in_one_process_regulates_and_records(context, executor, spi
     assert {f'{namespace}/{n}' for n in NODES} <= names   # every node reports
     # The recorder asked the running nodes for their parameters and embedded them.
     assert 'recorded parameters' in session.experiment.source
-    assert session.experiment.bridge.armed          # from the session's own params file
+    assert session.experiment.bridge.armed   # armed as `run` arms it (experiment.arm_bridge)
     assert session.experiment.controller.smc_epsilon_n == 200.0   # from park1998_fig8.yaml
 
 

@@ -20,7 +20,7 @@ from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 from turning_force_msgs.msg import FeedCommand, FeedOverride
 
-from modbus_helpers import ServerProcess, local_machine, write_machine
+from modbus_helpers import ServerProcess, coil_pattern, local_machine, write_machine
 from turning_force.core.pmc.overrides import get_table
 from turning_force.io.modbus_pmc import CoilReader
 from turning_force.io.pmc_server import SimulatedPmcServer
@@ -32,8 +32,7 @@ TIMEOUT_S = 1.0   # generous on a loaded machine; the late-server test sets its 
 
 
 def pattern(pct: float) -> list[bool]:
-    """The coils 0-3 that set ``pct`` on the 0-T wiring (direct logic), and the discrete
-    inputs 2-5 of the operator's dial at ``pct``."""
+    """The discrete inputs 2-5 of the operator's dial at ``pct`` (direct logic)."""
     return list(TABLE.encode(pct)[1])
 
 
@@ -120,7 +119,7 @@ def test_the_lifecycle_driven_through_its_services(context, executor, operator, 
     # configure: the machine file is loaded, the module connected, the programmed feed written.
     assert operator.transition(Transition.TRANSITION_CONFIGURE)
     assert operator.state() == 'inactive'
-    assert server.coils(0, 4) == pattern(100.0)
+    assert server.coils(0, 4) == coil_pattern(100.0)
     # Inactive, commands are answered with the programmed feed: the bridge does not act.
     assert operator.until(lambda: bool(operator.overrides))
     assert operator.last().applied_pct == 100.0 and 'inactive' in operator.last().detail
@@ -129,8 +128,9 @@ def test_the_lifecycle_driven_through_its_services(context, executor, operator, 
     assert operator.state() == 'active'
     assert operator.arm()
     assert operator.until(lambda: operator.last().reason == FeedOverride.REASON_NORMAL)
-    assert operator.last().applied_pct == 60.0 and list(operator.last().pmc_bits) == pattern(60.0)
-    assert server.coils(0, 4) == pattern(60.0) and server.coils(512, 4) == pattern(60.0)
+    assert operator.last().applied_pct == 60.0
+    assert list(operator.last().pmc_bits) == list(TABLE.encode(60.0)[1])
+    assert server.coils(0, 4) == server.coils(512, 4) == coil_pattern(60.0)
     # The machine's inputs, read each period: program enable on, the operator's dial at 70 %.
     server.set_discrete_inputs(0, [True, False, *pattern(70.0)])
     assert operator.until(lambda: bridge.inputs.operator_dial_pct == 70.0)
@@ -141,11 +141,11 @@ def test_the_lifecycle_driven_through_its_services(context, executor, operator, 
     assert operator.transition(Transition.TRANSITION_DEACTIVATE)
     assert operator.state() == 'inactive'
     assert operator.last().reason == FeedOverride.REASON_OPERATOR
-    assert operator.last().applied_pct == 70.0 and server.coils(0, 4) == pattern(70.0)
+    assert operator.last().applied_pct == 70.0 and server.coils(0, 4) == coil_pattern(70.0)
     count = len(operator.overrides)
     assert operator.until(lambda: len(operator.overrides) >= count + 5, pct=130.0)
     assert {m.applied_pct for m in operator.overrides[count:]} == {70.0}
-    assert server.coils(0, 4) == pattern(70.0)
+    assert server.coils(0, 4) == coil_pattern(70.0)
     # cleanup releases the module: nothing more is written; shutdown finalizes.
     assert operator.transition(Transition.TRANSITION_CLEANUP)
     assert operator.state() == 'unconfigured' and bridge.backend is None
@@ -242,14 +242,16 @@ def test_a_server_that_refuses_writes(context, executor, operator, server, tmp_p
     assert operator.until(lambda: operator.last().reason == FeedOverride.REASON_IO_FAULT)
     assert 'refused, exception code 4 (device failure)' in operator.last().detail
     # Every write the server was sent was a level's whole pattern, refused ones included.
-    levels = {tuple(pattern(level)) for level in TABLE.levels_pct}
+    levels = {tuple(coil_pattern(level)) for level in TABLE.levels_pct}
     assert {w.values for w in server.writes if w.address == 0} <= levels
 
 
-def test_the_machine_entry_point_drives_the_transitions(context, executor, spin_until, server,
-                                                        tmp_path):
+def test_the_machine_entry_point_never_arms_by_itself(context, executor, spin_until, server,
+                                                     tmp_path):
     # turning_force_machine on the lathe PC: it configures and activates the bridge at start,
-    # and at SIGINT deactivates it (the feed handed back) and releases the module.
+    # never arms it by itself (not even with pmc_bridge.armed = true in a file: issue 18 item
+    # 7), says so on its first line and on /diagnostics, and arms on ~/arm; at SIGINT it
+    # deactivates the bridge (the feed handed back) and releases the module.
     namespace = f'/machine_{os.getpid()}'
     path = write_machine(tmp_path / 'm.yaml', port=server.port, timeout_s=TIMEOUT_S)
     session = tmp_path / 'session.yaml'
@@ -260,19 +262,37 @@ def test_the_machine_entry_point_drives_the_transitions(context, executor, spin_
     process = subprocess.Popen(
         [str(Path(sys.prefix) / 'bin' / 'turning_force_machine'), '--ros-args',
          '--params-file', str(FIG8), '--params-file', str(session), '-r', f'__ns:={namespace}'],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     try:
+        assert process.stdout is not None
+        first = process.stdout.readline()
+        assert first.startswith('turning_force_machine: the PMC bridge starts disarmed and never '
+                                'arms by itself: arm it with its ~/arm service'), first
         node = Node('controller', context=context)
         executor.add_node(node)
         commands = node.create_publisher(FeedCommand, f'{namespace}/control/feed_command', 10)
+        arming: list[str] = []
+        node.create_subscription(DiagnosticArray, '/diagnostics', lambda m: arming.extend(
+            v.value for s in m.status if s.name == f'{namespace}/pmc_bridge'
+            for v in s.values if v.key == 'arming'), 10)
 
-        def sixty_percent_on_the_coils() -> bool:
-            commands.publish(FeedCommand(override_pct=60.0, controller='smc'))
-            return server.coils(0, 4) == pattern(60.0)
+        def commanding(condition):
+            def check() -> bool:
+                commands.publish(FeedCommand(override_pct=60.0, controller='smc'))
+                return condition()
+            return check
 
-        assert spin_until(sixty_percent_on_the_coils, 60.0)
+        assert spin_until(commanding(lambda: bool(arming)), 60.0)
+        assert f'{namespace}/pmc_bridge: active, disarmed' in arming[-1]
+        assert f'ros2 service call {namespace}/pmc_bridge/arm std_srvs/srv/Trigger' in arming[-1]
+        assert server.coils(0, 4) == coil_pattern(100.0)   # commanded 60 %, not armed
+        client = node.create_client(Trigger, f'{namespace}/pmc_bridge/arm')
+        assert client.wait_for_service(timeout_sec=30.0)
+        future = client.call_async(Trigger.Request())
+        assert spin_until(future.done, 30.0) and future.result().success
+        assert spin_until(commanding(lambda: server.coils(0, 4) == coil_pattern(60.0)), 30.0)
     finally:
         process.send_signal(signal.SIGINT)
         output, _ = process.communicate(timeout=30)
     assert process.returncode == 0, output
-    assert server.coils(0, 4) == pattern(100.0)   # handed back on the way out
+    assert server.coils(0, 4) == coil_pattern(100.0)   # handed back on the way out

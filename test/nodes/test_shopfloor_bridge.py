@@ -15,7 +15,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 from turning_force_msgs.msg import CutRecord, FeedCommand, FeedOverride, ForceEstimate
 
-from modbus_helpers import local_machine, write_machine
+from modbus_helpers import coil_pattern, local_machine, write_machine
 from turning_force.core.pmc.overrides import get_table
 from turning_force.core.pmc.shopfloor import TaughtTool, save_teach_file
 from turning_force.io.pmc_server import SimulatedPmcServer
@@ -122,7 +122,7 @@ def test_the_program_threading_and_dial_inputs_on_the_module(context, executor, 
     last = controller.last()
     assert last.applied_pct == 100.0 and 'has not enabled adaptive feed' in last.detail
     assert (last.program_enable, last.threading, last.operator_dial_pct) == (0, 0, 150.0)
-    assert server.coils(0, 4) == dial(100.0)
+    assert server.coils(0, 4) == coil_pattern(100.0)
     # M810: the request goes through.
     server.set_discrete_inputs(ENABLE, [True])
     assert controller.until(lambda: controller.last().reason == FeedOverride.REASON_NORMAL)
@@ -131,7 +131,7 @@ def test_the_program_threading_and_dial_inputs_on_the_module(context, executor, 
     server.set_discrete_inputs(DIAL, dial(40.0))
     assert controller.until(lambda: controller.last().applied_pct == 40.0)
     assert controller.last().reason == FeedOverride.REASON_OPERATOR
-    assert controller.last().operator_dial_pct == 40.0 and server.coils(0, 4) == dial(40.0)
+    assert controller.last().operator_dial_pct == 40.0 and server.coils(0, 4) == coil_pattern(40.0)
     server.set_discrete_inputs(DIAL, dial(150.0))
     # Threading: FANUC runs it at 100 %; the bridge stands down.
     server.set_discrete_inputs(THREADING, [True])

@@ -30,7 +30,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any, NoReturn
 
-from turning_force.core.errors import NoCutError, TurningForceError
+from turning_force.core.errors import NoCutError, TurningForceError, short_repr
 from turning_force.core.experiment import Experiment, load_experiment
 from turning_force.core.metrics import METRIC_NAMES, OPTIONAL_METRICS
 from turning_force.core.overlay import with_parameters_file
@@ -819,7 +819,25 @@ def _pmc_check(args: argparse.Namespace) -> int:
     if machine.modbus is None:
         raise TurningForceError(f'{args.machine}: backend.type = {machine.backend!r}: no module '
                                 'to check')
-    return 0 if check_pmc(machine, sys.stdout, args.control_period_s, args.dwell_s) else 1
+    return 0 if check_pmc(machine, sys.stdout, args.control_period_s, args.dwell_s,
+                          hand_back_pct=args.hand_back_pct) else 1
+
+
+def _number_in(low: float, high: float, low_open: bool = False) -> Callable[[str], float]:
+    """An argparse type: a finite number in [low, high] (``(low, high]`` with ``low_open``);
+    argparse prints the one-line error, the value shortened."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        below = value <= low if low_open else value < low
+        if not math.isfinite(value) or below or value > high:
+            bracket = '(' if low_open else '['
+            raise argparse.ArgumentTypeError(
+                f'{short_repr(text)}: expected a finite number in {bracket}{low:g}, {high:g}]')
+        return value
+    return parse
 
 
 def _band_n(args: argparse.Namespace) -> float:
@@ -1001,10 +1019,14 @@ def build_parser() -> argparse.ArgumentParser:
     check = commands.add_parser('pmc-check', help='step the PMC module through every override '
                                 'level and read each back')
     check.add_argument('machine', help='machine file (config/machines/*.yaml)')
-    check.add_argument('--dwell-s', type=float, default=0.5,
+    check.add_argument('--dwell-s', type=_number_in(0.0, 60.0), default=0.5,
                        help='time each level is held, for the operator to read it [s]')
-    check.add_argument('--control-period-s', type=float, default=0.01,
-                       help="the bridge's control period: the timeout when the file gives none")
+    check.add_argument('--control-period-s', type=_number_in(0.0, 1.0, low_open=True),
+                       default=0.01, help="the bridge's control period: the timeout when the "
+                       'file gives none')
+    check.add_argument('--hand-back-pct', type=_number_in(0.0, 100.0), default=100.0,
+                       help="the bridge's hand_back_pct: the wiring's all-off level must not "
+                       'exceed it')
     check.set_defaults(handler=_pmc_check)
 
     def add_live(command: argparse.ArgumentParser) -> None:

@@ -13,7 +13,8 @@ In a thread of this process (:class:`SimulatedPmcServer`) or as a process of its
 
     python -m turning_force.io.pmc_server [--machine FILE] [--host 127.0.0.1] [--port 0]
 
-which prints ``port N`` once it listens and serves until SIGINT or SIGTERM.
+which binds 127.0.0.1 unless ``--host`` says otherwise, prints ``port N: listening on HOST:N``
+once it listens, and serves until SIGINT or SIGTERM.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.simulator.simutils import SimUtils
 
-from turning_force.core.errors import ConfigError, TurningForceError
+from turning_force.core.errors import ConfigError, TurningForceError, short_repr
 from turning_force.core.experiment import Experiment
 from turning_force.core.pmc.machine import Machine, load_machine
 from turning_force.io.modbus_pmc import quiet_pymodbus
@@ -105,9 +106,9 @@ class SimulatedPmcServer:
         self._thread.start()
         try:
             self.port = started.result(timeout=10.0)
-        except OSError as exc:
+        except (OSError, OverflowError) as exc:
             raise ServerError(f'simulated PMC on {self.host}:{self.port}: cannot listen: '
-                              f'{exc}') from exc
+                              f'{short_repr(str(exc), 120)}') from exc
         return self.port
 
     def stop(self) -> None:
@@ -265,12 +266,19 @@ def simulated_parameters(experiment: Experiment) -> tuple[dict[str, dict[str, An
     return resolved, pmc
 
 
+def _port(text: str) -> int:
+    """An argparse type: a TCP port, 0 to 65535."""
+    if not (text.isdigit() and int(text) <= 65535):
+        raise argparse.ArgumentTypeError(f'{short_repr(text)}: expected a port, 0 to 65535')
+    return int(text)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='python -m turning_force.io.pmc_server',
                                      description='A simulated PMC on Modbus/TCP.')
     parser.add_argument('--machine', help='machine file (mirrors its read-back image)')
     parser.add_argument('--host', default='127.0.0.1')
-    parser.add_argument('--port', type=int, default=0, help='0: one the OS chooses')
+    parser.add_argument('--port', type=_port, default=0, help='0: one the OS chooses')
     args = parser.parse_args(argv)
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -282,7 +290,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TurningForceError as exc:
         print(f'pmc_server: {exc}', file=sys.stderr)
         return 2
-    print(f'port {port}', flush=True)
+    print(f'port {port}: listening on {args.host}:{port}', flush=True)
     try:
         stop.wait()
     finally:

@@ -7,6 +7,12 @@ Both configure and activate ``pmc_bridge`` once the graph exists, and deactivate
 when the process stops. On a desk, a machine file whose module is on 127.0.0.1 is served by a
 simulated PMC on Modbus/TCP for the graph's lifetime. (``turning-force run`` composes the nodes
 in lock-step instead: :mod:`turning_force.commands.run`.)
+
+Arming is never a guess. ``turning_force_graph`` arms the way ``turning-force run`` does: as
+the files say (``experiment.arm_bridge``, default true, or ``pmc_bridge.armed``).
+``turning_force_machine`` never arms by itself, whatever a file says: its first line, and
+``/diagnostics``, say what state the bridge is in and what arms it (``~/arm``; the program-enable
+input, where wired, gates it).
 """
 
 from __future__ import annotations
@@ -14,8 +20,12 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
+import yaml
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
+from turning_force.core.errors import ConfigError
+from turning_force.core.experiment import build_experiment, parameter_sections
 from turning_force.io.pmc_server import PmcSimulation, simulate_pmc
 from turning_force.nodes.force_controller import ForceControllerNode
 from turning_force.nodes.force_estimator import ForceEstimatorNode
@@ -24,10 +34,28 @@ from turning_force.nodes.pmc_bridge import PmcBridgeNode
 from turning_force.nodes.session_recorder import SessionRecorderNode
 from turning_force.nodes.spin import run_nodes
 
-__all__ = ['machine_main', 'main']
+__all__ = ['arms_like_run', 'machine_main', 'main']
 
 
-def _machine(servers: list[PmcSimulation] | None = None) -> list[Node]:
+def arms_like_run(args: Sequence[str]) -> bool:
+    """Whether ``turning-force run`` would arm the bridge with the ``--params-file`` files of
+    ``args`` (later files override earlier ones, as ROS reads them)."""
+    sections: dict[str, dict[str, object]] = {}
+    files = [args[k + 1] for k, arg in enumerate(args[:-1]) if arg == '--params-file']
+    for path in files:
+        try:
+            with open(path, encoding='utf-8') as stream:
+                data = yaml.safe_load(stream)
+        except (OSError, yaml.YAMLError) as exc:
+            raise ConfigError(f'{path}: cannot read the parameters file ({exc})') from exc
+        for name, params in parameter_sections(data, path).items():
+            sections.setdefault(name, {}).update(params)
+    return build_experiment(' + '.join(files) or 'defaults', sections).bridge.armed
+
+
+def _machine(servers: list[PmcSimulation] | None = None, arm: bool = False) -> list[Node]:
+    """The machine's nodes; ``arm``: arm the bridge once active (the desk graph); false: it
+    stays disarmed until told, whatever the files say (the machine)."""
     bridge = PmcBridgeNode(autostart=False)
     nodes: list[Node] = [ForceEstimatorNode(), ForceControllerNode(), bridge,
                          SessionRecorderNode()]
@@ -36,20 +64,33 @@ def _machine(servers: list[PmcSimulation] | None = None) -> list[Node]:
         pmc = simulate_pmc(settings.machine_file, settings.backend, settings.override_table)
         pmc.start()
         servers.append(pmc)
+    elif bridge.parameters.current.armed:
+        bridge.set_parameters([Parameter('armed', value=False)])
+        bridge.get_logger().warning('pmc_bridge.armed = true in a parameters file: not used by '
+                                    'turning_force_machine, which never arms by itself')
     bridge.start()   # configure and activate, now that the graph exists
+    if arm:
+        bridge.arm()
+    print(bridge.state_text(), flush=True)
     return nodes
 
 
 def main(args: Sequence[str] | None = None) -> int:
     servers: list[PmcSimulation] = []
+    argv = list(sys.argv if args is None else args)
     try:
-        return run_nodes(lambda: [LatheSimNode(), *_machine(servers)], args)
+        return run_nodes(lambda: [LatheSimNode(), *_machine(servers, arms_like_run(argv))],
+                         args)
     finally:
         for server in servers:
             server.stop()
 
 
 def machine_main(args: Sequence[str] | None = None) -> int:
+    print('turning_force_machine: the PMC bridge starts disarmed and never arms by itself: '
+          'arm it with its ~/arm service (ros2 service call .../pmc_bridge/arm '
+          'std_srvs/srv/Trigger); where the program-enable input is wired, it acts only while '
+          'that input is on', flush=True)
     return run_nodes(_machine, args)
 
 

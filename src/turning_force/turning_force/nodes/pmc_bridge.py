@@ -11,14 +11,19 @@ Parameters: :class:`turning_force.core.pmc.settings.BridgeSettings`, and ``autos
 and activate at start). The decisions (disarmed, watchdog, invalid command, overload hold, the
 shop-floor behaviours) are :class:`turning_force.core.pmc.gate.OverrideGate`'s.
 
-Lifecycle (docs/machine-pc.md): configure loads ``machine_file`` and opens the backend;
-activate lets the gate run and arm (``armed`` or ``~/arm``); deactivate, cleanup and shutdown
-hand the feed back (the operator's dial where wired, else 100 %). With ``backend: modbus_tcp``
+Lifecycle (docs/machine-pc.md): configure loads ``machine_file`` (refusing wiring that is not
+safe when de-energised) and opens the backend; activate lets the gate run and arm (``armed`` or
+``~/arm``); deactivate, cleanup and shutdown hand the feed back: the operator's dial where
+wired, else 100 %, never above ``hand_back_pct`` (docs/safety.md). With ``backend: modbus_tcp``
 each override goes to the module in one request and is read back
-(:class:`turning_force.io.modbus_pmc.ModbusPmc`); an I/O fault disarms the bridge, says why
-(``REASON_IO_FAULT``, ``/diagnostics``) and reconnects with back-off. The machine's inputs come
-from the module where the machine file wires them, else from ``machine/inputs``; every
-``FeedOverride`` records the inputs its decision saw, so that replay decides alike.
+(:class:`turning_force.io.modbus_pmc.ModbusPmc`); an I/O fault (a malformed answer included:
+never an exception) disarms the bridge, says why (``REASON_IO_FAULT``, ``/diagnostics``) and
+reconnects with back-off; arming is refused while it lasts, and the bridge stays disarmed after
+it until armed again. A period without an answer is a miss, counted on ``/diagnostics``; only
+``max_missed_periods`` in a row are a fault. The machine's inputs come from the module where
+the machine file wires them, else from ``machine/inputs``; every ``FeedOverride`` records the
+inputs its decision saw, so that replay decides alike. Every watchdog, timeout and rate limit
+reads the steady clock (``/clock`` in sim time), never the wall clock.
 """
 
 from __future__ import annotations
@@ -30,6 +35,9 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock
+from rclpy.clock_type import ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, Header
@@ -45,13 +53,19 @@ from turning_force_msgs.msg import (
 
 from turning_force.core import kernel
 from turning_force.core.catalog import BridgeNodeSettings
-from turning_force.core.errors import ConfigError, TurningForceError
+from turning_force.core.errors import ConfigError, TurningForceError, short_repr
 from turning_force.core.kernel.chain import check_taught_reference, command_for_would_act
 from turning_force.core.pmc.gate import OverrideGate
 from turning_force.core.pmc.machine import Machine, load_machine
 from turning_force.core.pmc.overrides import OverrideTable
 from turning_force.core.pmc.settings import BridgeSettings, Decision, Reason
-from turning_force.core.pmc.shopfloor import NO_INPUTS, Learned, save_teach_file, taught_reference
+from turning_force.core.pmc.shopfloor import (
+    NO_INPUTS,
+    InputValues,
+    Learned,
+    save_teach_file,
+    taught_reference,
+)
 from turning_force.nodes.convert import (
     cut_to_msg,
     estimate_from_msg,
@@ -99,29 +113,36 @@ class PmcBridgeNode(LifecycleNode):
         as the ``autostart`` parameter says (``None``)."""
         super().__init__('pmc_bridge', **kwargs)
         kernel.load()   # the compiled code, before the first block (compiled on a cold cache)
-        self._time = NodeTime(self)   # the gate's clock, without a clock call per message
+        # The gate's clock, without a clock call per message: steady (or /clock), never the
+        # wall clock, which NTP or an operator may step either way.
+        self._time = NodeTime(self, steady=True)
         # Set first: the context's cleanup may destroy a node whose parameters were refused.
         self.machine: Machine | None = None
         self.backend: Any = None        # SimulatedPmc or ModbusPmc once configured
         self.inputs: Any = None         # InputValues from the module, once read
         self._module_inputs = NO_INPUTS  # those of the module's inputs the machine file wires
+        self._dial_read: float | None = None   # the dial as last read (raised when confirmed)
         self._topic_inputs = NO_INPUTS   # machine/inputs (the simulated machine's)
         self.cuts: list[CutRecord] = []  # the cuts published on pmc/cuts
         self._gate_outputs: dict[str, bool] = {}   # the outputs as the gate last set them
         self.io_fault = ''
+        self.misses = 0
         self.configure_error = ''
         self._active = False
         declare(self, BridgeNodeSettings, 'autostart')
         self.parameters = SettingsParameters(self, BridgeSettings, self._reconfigure)
+        self.add_on_set_parameters_callback(self._refuse_arming_in_fault)
         settings = self.parameters.current
         self.gate = OverrideGate(settings)
         self._exchanged = False         # an exchange since the last timer tick
         self._last_written: Decision | None = None
+        self._last_exchanged: Decision | None = None   # the last one the module read back
         self._last_reason: Reason | None = None
         self._last_published: tuple[float, Reason] | None = None
         self.diagnostics = Diagnostics(self)
         self.diagnostics.watch('control/feed_command', stale_after_s=settings.watchdog_period_s)
         self.diagnostics.set_value('state', 'unconfigured')
+        self.diagnostics.add_provider(lambda: {'arming': self.state_text()})
         self._publisher = self.create_publisher(FeedOverride, 'pmc/feed_override', 10)
         self._override = FeedOverride()   # refilled per write (rclpy serialises on publish)
         self._cut_publisher = self.create_publisher(CutRecord, 'pmc/cuts', 10)
@@ -136,7 +157,11 @@ class PmcBridgeNode(LifecycleNode):
                                          settings.spindle_speed_rpm)
         self.create_service(Trigger, '~/arm', self._on_arm)
         self.create_service(Trigger, '~/disarm', self._on_disarm)
-        self.create_timer(settings.control_period_s, timer_callback(self._on_timer))
+        # The period's timer on the steady clock too (a wall-clock timer stalls when the date
+        # is set back); on /clock in sim time, for lock-step determinism.
+        sim_time = bool(self.get_parameter('use_sim_time').value)
+        self.create_timer(settings.control_period_s, timer_callback(self._on_timer),
+                          clock=None if sim_time else Clock(clock_type=ClockType.STEADY_TIME))
         if self.get_parameter('autostart').value if autostart is None else autostart:
             self.start()
 
@@ -226,6 +251,7 @@ class PmcBridgeNode(LifecycleNode):
         if settings.machine_file:
             machine = load_machine(settings.machine_file)
             machine.check_table(settings.override_table)
+            machine.check_de_energised(settings.hand_back_pct)
         if settings.backend == 'modbus_tcp':
             if machine is None or machine.modbus is None:
                 what = ('no machine_file' if machine is None
@@ -234,10 +260,13 @@ class PmcBridgeNode(LifecycleNode):
                                   'host, port and coils come from a machine file')
             from turning_force.io.modbus_pmc import ModbusPmc
 
+            machine.modbus.check_miss_budget(settings.control_period_s, machine.source)
             backend: Any = ModbusPmc(machine, settings.control_period_s)
             fault = backend.connect()
             if fault:
                 raise BridgeStartError(f'{where}: {fault}')
+            self.inputs = self._module_inputs = backend.inputs
+            self._take_inputs()
             self.diagnostics.set_value('backend', backend.where)
             self.diagnostics.set_value('io_timeout_ms', f'{backend.timeout_s * 1e3:.1f}')
         else:
@@ -282,14 +311,21 @@ class PmcBridgeNode(LifecycleNode):
         return self.gate.table
 
     def _hand_back(self, requested_pct: float = float('nan')) -> Decision:
-        """Inactive: the operator's dial where one is wired and read, else the programmed feed."""
+        """Inactive: the operator's dial where one is wired and read, else the programmed feed;
+        never above ``hand_back_pct``, whatever the dial reads (an unwired 4-bit dial reads
+        150 %, the code of all inputs off: docs/safety.md)."""
+        level = self.parameters.current.hand_back_pct
         dial = None if self.inputs is None else self.inputs.operator_dial_pct
-        if dial is not None:
-            pct = self.table.quantise(dial)
+        if dial is not None and dial < level:
+            pct = self.table.level_at_most(dial)
             reason = Reason.OPERATOR
             detail = f"inactive: feed handed back to the operator's dial ({dial:g} %)"
         else:
-            pct, reason, detail = 100.0, Reason.DISARMED, 'inactive: programmed feed'
+            pct, reason = level, Reason.DISARMED
+            detail = ('inactive: programmed feed' if level >= 100.0
+                      else f'inactive: the hand-back level ({level:g} %)')
+            if dial is not None:
+                detail += f"; the operator's dial reads {dial:g} %"
         code, bits = self.table.encode(pct)
         return Decision(pct, requested_pct, code, bits, False, reason, detail,
                         self.gate.inputs)
@@ -354,6 +390,38 @@ class PmcBridgeNode(LifecycleNode):
 
     def _reconfigure(self, settings: BridgeSettings) -> None:
         self.gate.reconfigure(settings, self._now_s())
+
+    def _refuse_arming_in_fault(self, parameters: list[Parameter[Any]]) -> SetParametersResult:
+        """``armed`` cannot be set while the module is in fault (nor through ``ros2 param``)."""
+        for parameter in parameters:
+            if parameter.name == 'armed' and parameter.value and self.io_fault:
+                return SetParametersResult(successful=False, reason=(
+                    f'arm refused: the module is in fault: {self.io_fault}'))
+        return SetParametersResult(successful=True)
+
+    def arm(self) -> tuple[bool, str]:
+        """Arm as ``~/arm`` does: (whether it acts, what the service would answer)."""
+        response = self._set_armed(True, Trigger.Response())
+        return bool(response.success), str(response.message)
+
+    def state_text(self) -> str:
+        """What state the bridge is in and what arms it, in one line (the machine's first)."""
+        settings = self.parameters.current
+        where = self.get_fully_qualified_name()
+        if self.configure_error:
+            return f'{where}: not configured: {self.configure_error}'
+        state = 'active' if self._active else ('inactive' if self.backend is not None
+                                               else 'unconfigured')
+        if self.io_fault:
+            return f'{where}: {state}, in fault, disarmed: {self.io_fault}'
+        if settings.armed:
+            return f'{where}: {state}, armed'
+        wired = self.machine is not None and self.machine.inputs.program_enable is not None
+        enable = (', and acts only while the program-enable input is on' if wired
+                  and settings.program_enable_required else '')
+        return (f'{where}: {state}, disarmed (the programmed feed, at most '
+                f'{settings.hand_back_pct:g} %): it never arms by itself; arm it with '
+                f'`ros2 service call {where}/arm std_srvs/srv/Trigger`{enable}')
 
     def _set_armed(self, armed: bool, response: Trigger.Response) -> Trigger.Response:
         result = self._set_parameter('armed', armed)
@@ -482,34 +550,76 @@ class PmcBridgeNode(LifecycleNode):
         self.diagnostics.set_value('applied_pct', written.applied_pct)
 
     def _exchange(self, decision: Decision) -> Decision:
-        """Put ``decision`` on the PMC; what the PMC got (an I/O fault decision on a fault)."""
+        """Put ``decision`` on the PMC; what the PMC got (an I/O fault decision on a fault:
+        whatever goes wrong with the module, never an exception)."""
         backend = self.backend
         if not backend.polled:
             backend.write(decision.code, decision.bits)
             return decision
-        if not backend.connected:
+        try:
+            return self._exchange_module(backend, decision)
+        except Exception as exc:
+            backend.close()
+            return self._fault(decision, f'{backend.where}: {type(exc).__name__}: '
+                                         f'{short_repr(str(exc))}')
+
+    def _exchange_module(self, backend: Any, decision: Decision) -> Decision:
+        if not backend.connected and not backend.missed_in_row:
             if not backend.reconnect_due():
                 return self._fault(decision, backend.fault)
             fault = backend.connect()
             if fault:
                 return self._fault(decision, fault)
         result = backend.write(decision.code, decision.bits)
-        self.inputs = result.inputs
-        self._module_inputs = result.inputs
+        if result.missed:
+            return self._missed(decision, result.missed)
+        if not result.ok:   # the inputs as they were: none were read
+            return self._fault(decision, result.fault)
+        self.inputs = self._module_inputs = self._confirmed(result.inputs)
         self._take_inputs()   # for the next decision: these were read after this one
         self._report_inputs()
-        if not result.ok:
-            return self._fault(decision, result.fault)
         self.diagnostics.set_value('io_round_trip_ms', f'{result.round_trip_s * 1e3:.2f}')
+        self._count_misses()
         if self.io_fault:
             self.get_logger().info(f'{backend.where}: answering again; the bridge stays '
                                    'disarmed until armed')
             self.diagnostics.set_value('io', 'ok')
             self.io_fault = ''
         # What the PMC really sees: the bits read back (equal to those written, or a fault).
-        return replace(decision, applied_pct=self.table.decode(result.bits), bits=result.bits)
+        seen = replace(decision, applied_pct=self.table.decode(result.bits), bits=result.bits)
+        self._last_exchanged = seen
+        return seen
+
+    def _confirmed(self, inputs: InputValues) -> InputValues:
+        """The module's inputs, the operator's dial raised only once two reads in a row agree
+        (lowered at once): one corrupted answer must not raise the feed."""
+        dial, last = inputs.operator_dial_pct, self._dial_read
+        self._dial_read = dial
+        held = self._module_inputs.operator_dial_pct
+        if dial is None or held is None or dial <= held or dial == last:
+            return inputs
+        return replace(inputs, operator_dial_pct=held)
+
+    def _count_misses(self) -> None:
+        backend = self.backend
+        if backend.misses != self.misses:
+            self.misses = backend.misses
+            self.diagnostics.set_value('io_misses', backend.misses)
+            self.diagnostics.set_value('io_retries', backend.retries)
+
+    def _missed(self, decision: Decision, missed: str) -> Decision:
+        """No answer this period, within the miss budget: the PMC holds what it held (the last
+        level read back), and the next period writes again."""
+        self._count_misses()
+        last = self._last_exchanged
+        if last is None:
+            return self._fault(decision, missed)
+        return replace(last, requested_pct=decision.requested_pct,
+                       detail=f'{last.detail}; {missed}')
 
     def _fault(self, decision: Decision, fault: str) -> Decision:
+        if self.backend is not None and self.backend.polled:
+            self._count_misses()
         if not self.io_fault:
             self.diagnostics.error(f'IO_FAULT: {fault}', log=True)
             self.diagnostics.set_value('io', f'fault: {fault}')
@@ -518,7 +628,8 @@ class PmcBridgeNode(LifecycleNode):
             self.gate.disarm()
         self.io_fault = fault
         modbus = self.machine.modbus if self.machine is not None else None
-        pct = modbus.fail_safe_pct if modbus is not None else 100.0
+        pct = min(modbus.fail_safe_pct if modbus is not None else 100.0,
+                  self.parameters.current.hand_back_pct)
         code, bits = self.table.encode(pct)
         return Decision(pct, decision.requested_pct, code, bits, False, Reason.IO_FAULT,
                         f"{fault}; disarmed, reconnecting; the module's watchdog should hold "

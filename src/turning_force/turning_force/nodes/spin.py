@@ -61,9 +61,15 @@ class NodeTime:
     out of date and the next read takes it once. Otherwise the ROS clock is the system clock,
     which ``time.time_ns`` reads for a fraction of ``Clock.now``'s cost. The same values as
     ``node.get_clock().now().nanoseconds``, switching over when sim time is turned on or off.
+
+    ``steady``: off sim time, the monotonic clock instead, anchored once to the system clock
+    (so stamps still read as dates) and never stepped with it: a watchdog, timeout or rate
+    limit on this clock cannot be blinded or tripped by NTP or an operator setting the date.
     """
 
-    def __init__(self, node: Node) -> None:
+    def __init__(self, node: Node, steady: bool = False) -> None:
+        self._steady = steady
+        self._anchor_ns = time.time_ns() - time.monotonic_ns() if steady else 0
         self._clock = node.get_clock()
         self._moved = True
         self._wall = True
@@ -82,7 +88,9 @@ class NodeTime:
             self._moved = False
             self._wall = not (isinstance(self._clock, ROSClock) and self._clock.ros_time_is_active)
             self._ns = self._clock.now().nanoseconds
-        return time.time_ns() if self._wall else self._ns
+        if not self._wall:
+            return self._ns
+        return time.monotonic_ns() + self._anchor_ns if self._steady else time.time_ns()
 
     def close(self) -> None:
         if self._handle is not None:

@@ -40,7 +40,8 @@ G_RECENT_AT, G_PENDING_AT, G_PENDING_CAP, G_WINDOW_AT = range(26, 30)
 # the feed-follow check: how long, how far [% points], the axis's lag, the programmed feed
 # [mm/rev] and the spindle_speed_rpm parameter
 G_FOLLOW_S, G_FOLLOW_TOL, G_FOLLOW_LAG, G_FEED_REV, G_RPM, G_FOLLOW_OVER = range(30, 36)
-G_SIZE = 36
+G_HAND_BACK = 36
+G_SIZE = 37
 REACTION_NONE, REACTION_ALARM, REACTION_STOP, REACTION_HOLD = 0, 1, 2, 3
 DIAL_MIN, DIAL_PRODUCT, DIAL_IGNORE = 0, 1, 2
 # hold causes (the overload hold's detail): saturated, not finite, above the limit
@@ -470,7 +471,7 @@ def _judge(gp: np.ndarray, gs: np.ndarray, t: float, dec: np.ndarray) -> None:
         dec[DEC_DIALLED] = math.nan
         return
     if gs[GS_ARMED] == 0.0:
-        _dialled(gp, gs, dec, 100.0, DISARMED, GD_DISARMED)
+        _dialled(gp, gs, dec, gp[G_HAND_BACK], DISARMED, GD_DISARMED)
         return
     if gs[GS_CMD_T] < gs[GS_ARMED_T]:   # nothing since arming
         waited = t - gs[GS_ARMED_T]
@@ -809,7 +810,8 @@ class OverrideGate:
             return self._hold_text() + again
         texts = {
             GD_NONE: '',
-            GD_DISARMED: 'not armed: programmed feed',
+            GD_DISARMED: ('not armed: programmed feed' if s.hand_back_pct >= 100.0
+                          else f'not armed: the hand-back level ({s.hand_back_pct:g} %)'),
             GD_WAITING: 'armed, waiting for the first feed command',
             GD_NO_COMMAND: f'no feed command in {a:.3f} s since arming',
             GD_STALE: f'feed command {a:.3f} s old (watchdog {s.watchdog_period_s:g} s)',
@@ -935,6 +937,7 @@ def _gate_params(s: BridgeSettings, table: OverrideTable) -> FloatArray:
     p[G_FOLLOW_S], p[G_FOLLOW_TOL] = s.feed_follow_time_s, s.feed_follow_tolerance_pct
     p[G_FOLLOW_LAG], p[G_FOLLOW_OVER] = s.feed_follow_lag_s, s.feed_follow_overshoot
     p[G_FEED_REV], p[G_RPM] = s.programmed_feed_mm_rev, s.spindle_speed_rpm
+    p[G_HAND_BACK] = s.hand_back_pct
     p[G_RECENT_AT] = GS_FIXED
     p[G_PENDING_AT] = GS_FIXED + BLOCK_FIELDS * debounce
     p[G_PENDING_CAP] = debounce + settle

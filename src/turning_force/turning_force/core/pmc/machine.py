@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from turning_force.core.errors import ConfigError
+from turning_force.core.errors import ConfigError, short_repr
 from turning_force.core.pmc.overrides import OverrideTable, get_table
 from turning_force.core.yamlfile import read_yaml_file
 
@@ -125,6 +125,9 @@ class ModbusTcp:
     reconnect_min_s: float = 0.1
     reconnect_max_s: float = 5.0
     fail_safe_pct: float = 100.0
+    module_watchdog_s: float = 0.1
+    max_missed_periods: int = 3
+    owner_register: int | None = None
 
     @property
     def first_coil(self) -> int:
@@ -170,6 +173,18 @@ class ModbusTcp:
     def address_text(self) -> str:
         return f'{self.host}:{self.port} unit {self.unit_id}'
 
+    def check_miss_budget(self, control_period_s: float, source: str) -> None:
+        """Refuse a miss budget the module's own watchdog would not outlast: the bridge faults
+        after ``max_missed_periods`` consecutive misses, which must come before the module drops
+        its outputs (``module_watchdog_s``), or a busy PC would trip the module first."""
+        budget_s = self.max_missed_periods * control_period_s
+        if budget_s >= self.module_watchdog_s:
+            raise ConfigError(
+                f'{source}: backend.max_missed_periods = {self.max_missed_periods}: '
+                f'{self.max_missed_periods} x the {control_period_s * 1e3:g} ms control period '
+                f'= {budget_s * 1e3:g} ms, not below backend.module_watchdog_s = '
+                f'{self.module_watchdog_s * 1e3:g} ms')
+
 
 @dataclass(frozen=True)
 class Machine:
@@ -183,6 +198,42 @@ class Machine:
     inputs: MachineInputs = MachineInputs()
     outputs: MachineOutputs = MachineOutputs()
     description: str = ''
+
+    def all_off_pct(self) -> float | None:
+        """What the PMC reads with every override output off (the module's watchdog tripped,
+        its 24 V or the PC lost) [%]; ``None`` when that pattern is no level of the table."""
+        if self.modbus is None:
+            return None
+        off = self.modbus.bits_from([False] * len(self.modbus.override_coils))
+        try:
+            return self.table.decode(off)
+        except ValueError:
+            return None
+
+    def check_de_energised(self, hand_back_pct: float) -> None:
+        """Refuse wiring that is not safe when de-energised: with every output off the PMC
+        must read a level at or below ``hand_back_pct`` (docs/safety.md)."""
+        modbus = self.modbus
+        if modbus is None:
+            return
+        off = self.all_off_pct()
+        n = len(modbus.override_coils)
+        if off is None:
+            raise ConfigError(f'{self.source}: backend.logic = {modbus.logic!r}: with every '
+                              f'output off ({"0" * n}) the PMC reads no level of '
+                              f'{self.table.name}; the wiring must fall back to a level')
+        if off > hand_back_pct:
+            other = 'inverted' if modbus.logic == 'direct' else 'direct'
+            raise ConfigError(
+                f'{self.source}: backend.logic = {modbus.logic!r}: with every output off '
+                f'({"0" * n}: module watchdog, PC or 24 V lost) the PMC reads {off:g} % on '
+                f'{self.table.name}, above the hand-back level ({hand_back_pct:g} %); wire it '
+                f'so that off is safe (logic: {other}, or a ladder relay that falls back to the '
+                'dial): docs/safety.md')
+        if modbus.fail_safe_pct > hand_back_pct:
+            raise ConfigError(f'{self.source}: backend.fail_safe_pct = '
+                              f'{modbus.fail_safe_pct:g}: above the hand-back level '
+                              f'({hand_back_pct:g} %)')
 
     def check_table(self, override_table: str) -> None:
         """Refuse a machine whose table is not the experiment's ``override_table``: the
@@ -222,7 +273,8 @@ class _Reader:
         return f'{self.path}.{name}' if self.path else name
 
     def fail(self, name: str, reason: str) -> ConfigError:
-        return ConfigError(f'{self.source}: {self.key(name)} = {self.data.get(name)!r}: {reason}')
+        return ConfigError(f'{self.source}: {self.key(name)} = {short_repr(self.data.get(name))}: '
+                           f'{reason}')
 
     def only(self, known: Sequence[str]) -> None:
         unknown = sorted(set(self.data) - set(known))
@@ -326,7 +378,7 @@ def _dial(reader: _Reader) -> DialInput | None:
 def _modbus(backend: _Reader, table: OverrideTable) -> ModbusTcp:
     backend.only(('type', 'host', 'port', 'unit_id', 'override_coils', 'logic',
                   'readback_address', 'timeout_s', 'reconnect_min_s', 'reconnect_max_s',
-                  'fail_safe_pct'))
+                  'fail_safe_pct', 'module_watchdog_s', 'max_missed_periods', 'owner_register'))
     if table.continuous:
         raise ConfigError(f"{backend.source}: backend.type = 'modbus_tcp': the table "
                           f'{table.name} is continuous; a PMC takes levels')
@@ -342,17 +394,27 @@ def _modbus(backend: _Reader, table: OverrideTable) -> ModbusTcp:
     assert low is not None and high is not None
     if high < low:
         raise backend.fail('reconnect_max_s', f'below reconnect_min_s ({low:g})')
-    fail_safe = backend.number('fail_safe_pct', 100.0, low_open=False)
+    # The level the module's watchdog holds when the PC is gone: never above the programmed
+    # feed (a safety parameter that cannot be set unsafe: docs/safety.md).
+    fail_safe = backend.number('fail_safe_pct', 100.0, low_open=False, high=100.0)
     assert fail_safe is not None
     if fail_safe not in table.levels_pct:
         raise backend.fail('fail_safe_pct', f'not a level of {table.name}')
+    if not backend.has('module_watchdog_s'):
+        raise backend.fail('module_watchdog_s', "missing: the module's own fieldbus watchdog "
+                           'time (it turns the outputs off when the PC stops talking)')
+    watchdog = backend.number('module_watchdog_s', None, high=1.0)
+    assert watchdog is not None
+    misses = backend.integer('max_missed_periods', 3, low=1, high=100)
+    owner = (backend.integer('owner_register') if backend.has('owner_register') else None)
     readback = (backend.integer('readback_address') if backend.has('readback_address')
                 else None)
     return ModbusTcp(
         host=backend.text('host'), port=backend.integer('port', 502, low=1),
         unit_id=backend.integer('unit_id', 1, high=255), override_coils=coils,
         logic=backend.text('logic', 'direct', LOGIC), readback_address=readback,
-        timeout_s=timeout, reconnect_min_s=low, reconnect_max_s=high, fail_safe_pct=fail_safe)
+        timeout_s=timeout, reconnect_min_s=low, reconnect_max_s=high, fail_safe_pct=fail_safe,
+        module_watchdog_s=watchdog, max_missed_periods=misses, owner_register=owner)
 
 
 def parse_machine(data: Any, source: str) -> Machine:

@@ -104,6 +104,14 @@ class OverrideTable:
         lo, hi = levels[upper - 1], levels[upper]
         return hi if hi - pct < pct - lo else lo
 
+    def level_at_most(self, pct: float) -> float:
+        """The highest level at or below ``pct`` (the lowest level when none is): a bound that
+        quantising must not round up past (the hand-back level, the operator's dial)."""
+        if self.continuous:
+            return min(max(pct, self.min_pct), self.max_pct)
+        index = bisect.bisect_right(self.levels_pct, pct)
+        return self.levels_pct[max(index - 1, 0)]
+
     def quantise_array(self, requested_pct: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Vectorised :meth:`quantise` (for replays); NaN stays NaN."""
         req = np.asarray(requested_pct, dtype=np.float64)

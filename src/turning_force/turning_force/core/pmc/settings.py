@@ -6,7 +6,8 @@ The controller asks; the gate decides what is written, in this order:
    comes from a saturated current sensor: a force the sensor cannot read is taken as too
    large), the feed is held (0 %) until the bridge is re-armed with the force back under the
    limit.
-2. Disarmed: the programmed feed (100 %), as if the option were off. The bridge starts disarmed.
+2. Disarmed: the programmed feed (100 %), as if the option were off, at most ``hand_back_pct``
+   (the level every hand-back is bounded by: docs/safety.md). The bridge starts disarmed.
 3. Watchdog: no feed command within ``watchdog_period_s``: the configured safe override.
    Just after arming the controller has that long to send its first command; meanwhile the
    programmed feed stays.
@@ -103,6 +104,10 @@ class BridgeSettings(ShopFloorSettings):
     overload_force_n: float = setting(2000.0, 'Estimated force that holds the feed until '
                                       're-armed; at most max_feed_force_n', 'N', low=0.0,
                                       low_open=True, high=1e5, dynamic=True)
+    hand_back_pct: float = setting(100.0, 'The highest override the bridge hands back when it '
+                                   'is disarmed, stopped, faulted or signalled, whatever the '
+                                   "operator's dial reads (docs/safety.md); a level of the table",
+                                   '%', low=0.0, high=100.0)
     backend: str = setting('simulated', 'Where the PMC bits go: simulated, or the Modbus/TCP '
                            'module machine_file describes', choices=('simulated', 'modbus_tcp'))
     machine_file: str = setting('', 'Machine file (config/machines/<machine>.yaml): override '
@@ -123,6 +128,10 @@ class BridgeSettings(ShopFloorSettings):
             self.fail('safe_override_pct', f'the {table.name} PMC would apply '
                       f'{table.quantise(self.safe_override_pct):g} %: the safe override must '
                       'hold or reduce the feed')
+        if self.hand_back_pct not in table.levels_pct and not table.continuous:
+            below = max(level for level in table.levels_pct if level <= self.hand_back_pct)
+            self.fail('hand_back_pct', f'not a level of {table.name}: the PMC would apply '
+                      f'{table.quantise(self.hand_back_pct):g} %; give {below:g}')
         if self.overload_force_n > self.max_feed_force_n:
             self.fail('overload_force_n', f'above max_feed_force_n ({self.max_feed_force_n:g} '
                                           'N), the force the feed axis is rated for')
