@@ -29,7 +29,8 @@ def json_out(capfd, argv):
 def test_run_records_a_session_and_a_figure(capfd, tmp_path, fig8):
     out = json_out(capfd, ['run', str(fig8), '--out', str(tmp_path / 's'), '--json',
                             '--set', 'experiment.duration_s=2.0'])
-    assert set(out['metrics']) == {*METRIC_NAMES, 'realtime_factor'}
+    # The simulator's truth is recorded: the estimator's error beside the regulation's.
+    assert set(out['metrics']) == {*METRIC_NAMES, 'estimate_error_rms_n', 'realtime_factor'}
     assert (tmp_path / 's' / 'metadata.yaml').is_file()
     assert Path(out['figure']).is_file() and out['executor'] == 'EventsExecutor'
 

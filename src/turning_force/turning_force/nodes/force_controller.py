@@ -17,10 +17,12 @@ stale) is not acted on: no command goes out, and the PMC bridge's watchdog takes
 
 from __future__ import annotations
 
+import collections
 import sys
 from collections.abc import Sequence
 from typing import Any
 
+from builtin_interfaces.msg import Time
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -29,7 +31,7 @@ from turning_force_msgs.msg import FeedCommand, FeedOverride, ForceEstimate
 
 from turning_force.core.control import ControllerSettings, make_controller
 from turning_force.core.kernel.chain import command_for
-from turning_force.nodes.convert import estimate_from_msg
+from turning_force.nodes.convert import estimate_from_msg, stamp_to_ns
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
 from turning_force.nodes.spin import run_nodes
@@ -37,6 +39,8 @@ from turning_force.nodes.spindle import SpindleSpeedInput
 
 __all__ = ['REFERENCE_QOS', 'ForceControllerNode', 'main']
 
+# Answers of the bridge, and stamps of blocks, kept until the next estimate takes them.
+ANSWERS_KEPT = 100
 REFERENCE_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                            reliability=ReliabilityPolicy.RELIABLE)
 
@@ -61,6 +65,8 @@ class ForceControllerNode(Node):
         self._command = FeedCommand()   # refilled per estimate (rclpy serialises on publish)
         self.create_subscription(ForceEstimate, 'force/estimate', self._on_estimate, 10)
         self.create_subscription(Float64, 'force/reference', self._on_reference, REFERENCE_QOS)
+        self._applied: collections.deque[FeedOverride] = collections.deque(maxlen=ANSWERS_KEPT)
+        self._blocks: set[int] = set()   # the stamps of the blocks estimated (answers match)
         self.create_subscription(FeedOverride, 'pmc/feed_override', self._on_applied, 10)
 
     def _retune(self, settings: ControllerSettings) -> None:
@@ -76,10 +82,25 @@ class ForceControllerNode(Node):
             self.diagnostics.error(text, log=True)
 
     def _on_applied(self, msg: FeedOverride) -> None:
-        self._controller.applied(msg.applied_pct, msg.engaged, msg.reason)
+        self._applied.append(msg)
+
+    def _take_applied(self, before: Time) -> None:
+        """The overrides applied that answer the blocks before ``before`` (the estimate now
+        in), in order: the core loop's order, each block's answer after its command, whichever
+        comes first over DDS. Only answers to blocks count (stamped as the block's estimate):
+        the bridge's own writes between blocks (waiting for the first command) answer none."""
+        limit = stamp_to_ns(before)
+        while self._applied and stamp_to_ns(self._applied[0].header.stamp) < limit:
+            msg = self._applied.popleft()
+            if stamp_to_ns(msg.header.stamp) in self._blocks:
+                self._controller.applied(msg.applied_pct, msg.engaged, msg.reason)
+        self._blocks.add(limit)
+        while len(self._blocks) > ANSWERS_KEPT:
+            self._blocks.discard(min(self._blocks))
 
     def _on_estimate(self, msg: ForceEstimate) -> None:
         self.diagnostics.received('force/estimate')
+        self._take_applied(msg.header.stamp)
         self._controller.spindle_speed(self.spindle.rpm())
         out = command_for(self._controller, estimate_from_msg(msg))
         if out is None:
