@@ -123,7 +123,10 @@ class Rig:
 
     def bridge(self, context: Any, executor: Any, namespace: str = '',
                **parameters: Any) -> PmcBridgeNode:
-        values = {'machine_file': str(self.path), 'backend': 'modbus_tcp', **parameters}
+        # No force comes in: the entry feed off, so the coils show the request as the gate
+        # passed it (the contract's bounds are on the request and the dial).
+        values = {'machine_file': str(self.path), 'backend': 'modbus_tcp',
+                  'air_cut_override_pct': 0.0, **parameters}
         node = PmcBridgeNode(autostart=True, context=context,
                              namespace=self.namespace + namespace,
                              parameter_overrides=[Parameter(k, value=v)

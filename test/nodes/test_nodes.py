@@ -223,9 +223,11 @@ def command(pct: float, sec: int = 1):
 
 @pytest.fixture
 def bridge_probe(context, executor):
+    # No force comes in (the tool out of the cut): the entry feed off, to see the safety gate
+    # act on the request itself (test_shopfloor.py tests the entry feed).
     bridge = PmcBridgeNode(context=context, parameter_overrides=[
         Parameter('safe_override_pct', value=20.0), Parameter('overload_force_n', value=900.0),
-        Parameter('watchdog_period_s', value=0.05)])
+        Parameter('watchdog_period_s', value=0.05), Parameter('air_cut_override_pct', value=0.0)])
     executor.add_node(bridge)
     probe = Probe(context, executor)
     overrides = probe.listen(FeedOverride, 'pmc/feed_override')

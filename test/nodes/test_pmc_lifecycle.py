@@ -103,7 +103,9 @@ def server():
 
 
 def bridge_on(context, executor, machine_file, *, autostart: bool = False, **parameters):
-    values = {'machine_file': str(machine_file), 'backend': 'modbus_tcp', **parameters}
+    # No force comes in: the entry feed off, so the coils show the request as the gate passed it.
+    values = {'machine_file': str(machine_file), 'backend': 'modbus_tcp',
+              'air_cut_override_pct': 0.0, **parameters}
     bridge = PmcBridgeNode(autostart=autostart, context=context, parameter_overrides=[
         Parameter(name, value=value) for name, value in values.items()])
     executor.add_node(bridge)

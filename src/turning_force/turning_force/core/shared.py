@@ -31,7 +31,7 @@ def control_period_s() -> Any:
 def allowed_error_n() -> Any:
     """The band about the reference that the metrics, the report and the live view draw."""
     return setting(10.0, 'Allowed tracking error: the band of the settling time and of the '
-                   'figures', 'N', low=0.0, low_open=True)
+                   'figures', 'N', low=0.0, low_open=True, high=1e5)
 
 
 def spindle_speed_rpm() -> Any:
