@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from turning_force.core.control.law import ControllerBase
 from turning_force.core.experiment import Experiment, assignments, load_experiment
 from turning_force.core.identify import IdentifySettings
 from turning_force.core.kernel.simulate import simulate
@@ -47,6 +48,7 @@ JOBS: Mapping[str, tuple[tuple[float, ...], tuple[float, ...], str, float]] = {
     'interrupted': ((0.0, 3.0, 4.0, 7.0, 8.0), (2.0, 0.0, 2.0, 0.0, 2.0), 'step', 11.0),
 }
 DRIFTS = ('dead time', 'process gain', 'friction', 'servo')
+PRODUCT_REACTION = ControllerBase.__dataclass_fields__['oscillation_reaction'].default
 
 
 @dataclass(frozen=True)
@@ -133,15 +135,17 @@ def _drift(kind: str, plant: Mapping[str, Any],
 def job_experiment(machine: Machine, *, after_drift: bool = True,
                    experiments: Path = EXPERIMENTS) -> Experiment:
     """Park's Fig. 8 file with the machine's job and the machine (drifted where it drifts),
-    entering each cut at the product's entry feed."""
+    with the product's entry feed and oscillation reaction."""
     times, depths, interpolation, duration = JOBS[machine.job]
     return load_experiment(experiments / 'park1998_fig8.yaml').with_sets([
         *machine.sets(after_drift=after_drift), f'lathe_sim.depth_times_s={list(times)!r}',
         f'lathe_sim.depth_mm={list(depths)!r}',
         f'lathe_sim.depth_interpolation={interpolation}', f'experiment.duration_s={duration!r}',
         f'experiment.name=machine_{machine.index}',
-        # the product's entry feed (Park's file enters at the programmed feed, as the paper)
-        f'pmc_bridge.air_cut_override_pct={ShopFloorSettings().air_cut_override_pct!r}'])
+        # the product's entry feed and oscillation reaction (Park's file keeps the paper's:
+        # entering at the programmed feed, the law alone)
+        f'pmc_bridge.air_cut_override_pct={ShopFloorSettings().air_cut_override_pct!r}',
+        f'force_controller.oscillation_reaction={PRODUCT_REACTION}'])
 
 
 @dataclass(frozen=True)
