@@ -71,7 +71,8 @@ OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.08, 2.0
 # integral law on the relative feed, u' = -w_c u e / F_ref (the force being about proportional
 # to the feed, its crossover is w_c whatever the process gain), with w_c = w_u / DETUNE_RATIO
 # keeps a phase margin of about 50 degrees on a loop of dead time, servo and tau_c whose phase
-# at w_u was -180 (Astrom & Hagglund, PID Controllers, 1995, Sec. 2.9 and 4.3).
+# at w_u was -180 (Astrom & Hagglund, PID Controllers, 1995, Sec. 2.9 and 4.3). Where the
+# detector still finds a cycle under the reaction, w_c is halved, as often as it does.
 DETUNE_RATIO = 6.0
 # oscillation_reaction's index in law.OSCILLATION_REACTIONS
 DETUNE, HOLD_MEAN, PROGRAMMED_FEED, NO_REACTION = 0, 1, 2, 3
@@ -165,8 +166,12 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
     elif (rising and error < cs[CS_O_EXT] - h) or (not rising and error > cs[CS_O_EXT] + h):
         _turn(cp, cs, cs[CS_O_EXT])
         cs[CS_O_EXT], cs[CS_O_DIR] = error, -cs[CS_O_DIR]
-    if cs[CS_O_COUNT] >= cp[C_OSC_COUNT] and cs[CS_O_ALARM] == 0.0:
-        _alarm(cp, cs)
+    if cs[CS_O_COUNT] >= cp[C_OSC_COUNT]:
+        if cs[CS_O_ALARM] == 0.0:
+            _alarm(cp, cs)
+        else:   # the reaction's loop cycles too: its crossover halved, watched afresh
+            cs[CS_O_CROSSOVER] *= 0.5
+            cs[CS_O_COUNT] = 0.0
 
 
 @compiled

@@ -1,0 +1,77 @@
+"""The oscillation alarm on the generated population (issue 16): how many runs oscillate by the
+issue's criterion, how many of those the controller alarms within 2 s of the onset, the alarms
+on runs that do not oscillate (none may come on a run in the band), and how many the reaction
+brings back under 25 N peak to peak.
+
+Each machine's job (commands/population.py) is cut with the uncommissioned defaults and the
+product's error-feedback quantiser, twice: with ``oscillation_reaction: none`` (the oscillation
+and the alarm, left alone) and with the product's reaction. The oscillation is judged on the
+simulator's true force, independent of the detector: peak to peak over a 1 s window in the cut
+above 50 N for at least 2 s (test/core/test_loop_watch.py)::
+
+    .venv/bin/python test/bench/bench_loop_watch.py --machines 60 --seed 15
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'core'))
+
+from test_loop_watch import first_alarm_s, oscillation_onset_s
+
+from turning_force.commands.population import draw, job_experiment
+from turning_force.core.kernel.simulate import simulate
+
+BAND_STEADY_N, BAND_RIPPLE_N = 5.0, 25.0
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--machines', type=int, default=60)
+    parser.add_argument('--seed', type=int, default=15)
+    args = parser.parse_args()
+    rows = []
+    for machine in draw(args.machines, args.seed):
+        job = job_experiment(machine).with_sets(['force_controller.quantiser=error_feedback'])
+        left = simulate(job.with_sets(['force_controller.oscillation_reaction=none']))
+        reacted = simulate(job).metrics
+        metrics = left.metrics
+        rows.append({
+            'machine': machine.describe(), 'onset_s': oscillation_onset_s(left),
+            'alarm_s': first_alarm_s(left),
+            'in_band': (metrics['steady_mean_abs_error_n'] <= BAND_STEADY_N
+                        and metrics['ripple_p2p_n'] <= BAND_RIPPLE_N),
+            'ripple_n': metrics['ripple_p2p_n'], 'reacted_ripple_n': reacted['ripple_p2p_n'],
+            'steady_n': metrics['steady_mean_abs_error_n'],
+            'reacted_steady_n': reacted['steady_mean_abs_error_n']})
+    oscillating = [r for r in rows if r['onset_s'] is not None]
+    caught = [r for r in oscillating
+              if r['alarm_s'] is not None and r['alarm_s'] <= r['onset_s'] + 2.0]
+    in_band = [r for r in rows if r['in_band']]
+    false = [r for r in rows if r['onset_s'] is None and r['alarm_s'] is not None]
+    calmed = [r for r in oscillating if r['reacted_ripple_n'] < BAND_RIPPLE_N]
+    print(f'{args.machines} machines (seed {args.seed}), uncommissioned defaults, '
+          'error-feedback quantiser')
+    print(f"  oscillating (true force, the issue's criterion)  {len(oscillating):4d}")
+    print(f'  alarmed within 2 s of the onset                   {len(caught):4d}')
+    print(f'  in band                                            {len(in_band):4d}')
+    print(f'  alarmed in band                                    '
+          f'{sum(r["alarm_s"] is not None for r in in_band):4d}')
+    print(f'  alarmed, not oscillating                           {len(false):4d}')
+    print(f'  under {BAND_RIPPLE_N:g} N ripple after the reaction            {len(calmed):4d}')
+    for title, group in (('missed or late', [r for r in oscillating if r not in caught]),
+                         ('alarmed, not oscillating', false),
+                         ('reaction left it over the ripple bound',
+                          [r for r in oscillating if r not in calmed])):
+        print(f'{title}:')
+        for r in group:
+            print(f'  {r["machine"]}: onset {r["onset_s"]}, alarm {r["alarm_s"]}, ripple '
+                  f'{r["ripple_n"]:.0f} -> {r["reacted_ripple_n"]:.0f} N, steady '
+                  f'{r["steady_n"]:.1f} -> {r["reacted_steady_n"]:.1f} N')
+
+
+if __name__ == '__main__':
+    main()
