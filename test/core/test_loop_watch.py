@@ -169,3 +169,33 @@ def test_the_graph_says_the_loop_oscillates_on_diagnostics(tmp_path):
     assert warnings, 'no oscillation alarm on /diagnostics'
     assert 'detune' in warnings[0].message
     assert any(v.key == 'oscillating' and v.value == 'True' for v in warnings[0].values)
+
+
+def estimator_warnings(bag) -> list[str]:
+    from rosbags.highlevel import AnyReader
+
+    from turning_force.session.bag import typestore
+
+    found = []
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        topic = [c for c in reader.connections if c.topic == '/diagnostics']
+        for connection, _, raw in reader.messages(connections=topic):
+            for status in reader.deserialize(raw, connection.msgtype).status:
+                if status.name.endswith('force_estimator'):
+                    found.append(status.message)
+    return found
+
+
+@pytest.mark.parametrize(('sets', 'warned'), [
+    ((), True),   # Fig. 8 cuts from start to end: no air move in 5 s
+    (tuple(INTERRUPTED), False),   # in the air at 3-4 s: re-zeroed at 3.3 s
+], ids=['no air move', 'air moves'])
+def test_a_program_without_air_moves_is_flagged(tmp_path, sets, warned):
+    # Issue 16 item 3: the friction re-zero needs air moves; none for rezero_stale_s is said.
+    from turning_force.commands.run import run_lockstep
+
+    experiment = load_experiment(FIG8).with_sets([
+        *sets, 'force_estimator.rezero_stale_s=3.5', 'experiment.duration_s=5.0'])
+    run_lockstep(experiment, tmp_path / 'session')
+    said = [m for m in estimator_warnings(tmp_path / 'session') if 'no air move' in m]
+    assert bool(said) == warned, said

@@ -11,6 +11,7 @@ when blocks stop coming for five block periods, ``STATUS_STALE`` estimates say s
 
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -19,8 +20,9 @@ from rclpy.node import Node
 from turning_force_msgs.msg import ForceEstimate, ServoCurrents
 
 from turning_force.core import kernel
-from turning_force.core.estimation.estimator import ForceEstimator
+from turning_force.core.estimation.estimator import ForceEstimator, rezeroed_text
 from turning_force.core.estimation.settings import EstimateStatus, EstimatorSettings
+from turning_force.core.estimation.settings import ForceEstimate as Estimate
 from turning_force.nodes.convert import (
     estimate_to_msg,
     last_sample_ns,
@@ -37,6 +39,10 @@ __all__ = ['ForceEstimatorNode', 'main']
 STALE_CHECK_S = 0.1
 
 
+# How a re-zero's estimate detail begins (estimator.rezeroed_text).
+REZEROED = rezeroed_text(1.0).split(':')[0]
+
+
 class ForceEstimatorNode(Node):
     """Force and force rate from ``servo/currents`` to ``force/estimate``."""
 
@@ -51,6 +57,8 @@ class ForceEstimatorNode(Node):
         self.create_subscription(ServoCurrents, 'servo/currents', self._on_currents, 10)
         self._watching = False
         self._logged_scale = 1.0
+        self._rezeroed_s = math.nan   # when an air move last re-zeroed the friction [node s]
+        self._rezero_warned_s = -math.inf
         self.create_timer(STALE_CHECK_S, timer_callback(self._check_stale))
 
     def _reconfigure(self, settings: EstimatorSettings) -> None:
@@ -80,6 +88,7 @@ class ForceEstimatorNode(Node):
             self.diagnostics.error(f'servo/currents: {estimate.detail}')
         elif estimate.status == EstimateStatus.SATURATED:
             self.diagnostics.warn(estimate.detail)
+        self._watch_rezero(estimate)
         scale = self._estimator.friction_scale
         if abs(scale - self._logged_scale) > 0.02:   # log a re-zero once per 2 % of change
             self.get_logger().info(f'friction re-zeroed in air: {scale:.3f} x calibrated')
@@ -92,6 +101,28 @@ class ForceEstimatorNode(Node):
         set_stamp(out.header.stamp, last_sample_ns(msg))
         self._publisher.publish(out)
         self.diagnostics.published('force/estimate')
+
+
+    def _watch_rezero(self, estimate: Estimate) -> None:
+        """Issue 16: the friction re-zero needs air moves; where none came for
+        ``rezero_stale_s`` (from the first block, or the last re-zero), a WARN says so, again
+        every ``rezero_stale_s`` while it lasts."""
+        settings = self.parameters.current
+        now = estimate.t_s
+        if estimate.detail.startswith(REZEROED) or math.isnan(self._rezeroed_s):
+            self._rezeroed_s = now
+        if settings.rezero_stale_s <= 0.0 or settings.rezero_below_n <= 0.0:
+            return
+        since = now - self._rezeroed_s
+        self.diagnostics.set_value('since_friction_rezero_s', f'{since:.0f}')
+        if since >= settings.rezero_stale_s and now - self._rezero_warned_s >= \
+                settings.rezero_stale_s:
+            self._rezero_warned_s = now
+            self.diagnostics.warn(
+                f'no air move has re-zeroed the friction for {since:.0f} s (rezero_stale_s '
+                f'{settings.rezero_stale_s:g} s): a drift of the feed drive friction goes '
+                'into the force estimate unseen; add an air move to the program, or '
+                're-commission', log=True)
 
 
 def main(args: Sequence[str] | None = None) -> int:

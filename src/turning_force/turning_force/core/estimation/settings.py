@@ -92,6 +92,10 @@ class EstimatorSettings(FeedDriveSettings):
     rezero_time_constant_s: float = setting(0.3, 'Friction re-zero: how fast the friction scale '
                                             'follows what the air move measures', 's',
                                             low=1e-3, high=600.0)
+    rezero_stale_s: float = setting(300.0, 'Friction re-zero: a WARN on /diagnostics when no '
+                                    'air move has re-zeroed the friction for this long (a '
+                                    'program without one: friction that drifts goes unseen); '
+                                    '0: no warning', 's', low=0.0, high=86400.0)
     rezero_max_change: float = setting(0.5, 'Friction re-zero: the scale on the calibrated '
                                        'friction stays within 1 -/+ this', low=0.0, high=0.9,
                                        unit='-')
