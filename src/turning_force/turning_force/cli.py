@@ -276,6 +276,8 @@ def _replay(args: argparse.Namespace) -> int:
     from turning_force.session.reader import read_session
 
     bag = args.bags[0]
+    if args.closed_loop:
+        return _what_if(args, bag)
     session = read_session(bag, args.partial)
     _warn(session)
     if args.publish:
@@ -292,6 +294,21 @@ def _replay(args: argparse.Namespace) -> int:
     comparison = result.comparison(len(session.blocks))
     _print_replay(args, str(session.path), result.recorded, result.rerun, comparison,
                   _state(session))
+    return 0
+
+
+def _what_if(args: argparse.Namespace, bag: str) -> int:
+    """``replay BAG --closed-loop``: :mod:`turning_force.session.whatif`."""
+    from turning_force.session.whatif import what_if
+
+    result = what_if(bag, args.set, args.identified_from or ())
+    if args.json:
+        print(json.dumps(result.to_json()))
+        return 0
+    print(f'{bag}: closed loop on the machine identified from '
+          f'{", ".join(args.identified_from or [bag])}'
+          + (f', with {", ".join(args.set)}' if args.set else ', settings as recorded'))
+    print('\n'.join(result.lines()))
     return 0
 
 
@@ -919,6 +936,12 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument('--publish', action='store_true',
                      help='play the sensor topics into a live graph instead (one BAG)')
     rep.add_argument('--rate', type=float, default=1.0, help='playback rate with --publish')
+    rep.add_argument('--closed-loop', action='store_true',
+                     help='identify the machine and run the --set settings on it in closed loop '
+                     '(the force they would have caused), beside the recorded figures (one BAG)')
+    rep.add_argument('--identified-from', action='append', metavar='BAG',
+                     help='with --closed-loop: identify from this commissioning session '
+                     '(repeatable) instead of the replayed one')
     add_partial(rep)
     add_parallel(rep, 'sessions')
     rep.set_defaults(handler=_replay)
