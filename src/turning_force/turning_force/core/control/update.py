@@ -1,6 +1,8 @@
 """One control period, compiled, for every law: the law's ``step`` and what every law shares
 around it (:class:`~turning_force.core.control.base.Controller` states it): the guard on
-non-finite input, output and state, the error-feedback quantiser, the reachability flag.
+non-finite input, output and state, the error-feedback quantiser, the reachability flag, the
+oscillation alarm and its reaction (:func:`controller_update`), and the anti-windup on the
+override the PMC applied (:func:`controller_applied`).
 
 The law is chosen by its number (``C_KIND``) through the dispatch
 :mod:`turning_force.core.control.dispatch` writes for the laws installed.
