@@ -72,7 +72,7 @@ client.on('message', ({ subscriptionId, data }) => {
   }
   if (topic === '/force/reference') {
     entry.values.push(message.data);
-  } else if (topic === '/session/settings' && entry.values.length === 0) {
+  } else if (topic === '/session/settings') {
     entry.values.push(message.data);
   } else if (topic === '/view/band' && entry.values.length === 0) {
     entry.values.push(message);

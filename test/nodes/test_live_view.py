@@ -129,10 +129,12 @@ def test_foxglove_client_decodes_what_the_recorder_logged_and_watch_shows_it(
     # The latched reference, published before the client subscribed: sent again to it.
     assert topics['/force/reference']['schemaName'] == 'std_msgs/msg/Float64'
     assert REFERENCE_N in topics['/force/reference']['values']
-    # The session's settings, latched by the recorder: YAML of its custom data (the first
-    # message holds what is known at the start: the date and the software's versions).
+    # The session's settings, latched by the recorder: YAML of its custom data, with the
+    # graph's parameters as the recorder captures them (fig8's SMC boundary layer among them).
     assert topics['/session/settings']['schemaName'] == 'std_msgs/msg/String'
-    assert 'turning_force.versions_json' in topics['/session/settings']['values'][0]
+    settings = topics['/session/settings']['values']
+    assert 'turning_force.versions_json' in settings[0]
+    assert any('smc_epsilon_n' in text for text in settings), settings
     # /diagnostics, once a second from every node.
     assert {f'{namespace}/{n}' for n in NODES} <= set(topics['/diagnostics']['values'])
     # The band about the reference the controller regulates to, fig8's allowed_error_n.

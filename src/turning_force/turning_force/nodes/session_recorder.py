@@ -110,6 +110,7 @@ class SessionRecorderNode(Node):
         if experiment:
             custom[CUSTOM_EXPERIMENT] = Path(experiment).read_text()
         self._parameters_given = CUSTOM_PARAMETERS in custom
+        self._captured: dict[str, dict[str, Any]] = {}   # the graph's, as asked (capture)
         self.writer = SessionWriter(path, float(self.get_parameter('flush_period_s').value),
                                     background=background, custom_data=custom)
         self.diagnostics = Diagnostics(self)
@@ -129,7 +130,6 @@ class SessionRecorderNode(Node):
             self.writer.add_topic(name, msgtype(cls))
             self.create_subscription(cls, topic, self._callback(name), topic_qos(topic),
                                      raw=True)
-        self._captured: dict[str, dict[str, Any]] = {}
         self._asking: set[str] = set()
         self._parameter_clients: dict[str, AsyncParameterClient] = {}
         if self.get_parameter('capture_parameters').value:
@@ -159,6 +159,7 @@ class SessionRecorderNode(Node):
             return
         self._captured[node] = {n: parameter_value_to_python(v)
                                 for n, v in zip(names, response.values, strict=True)}
+        self._publish_settings()
 
     def _callback(self, name: str) -> Any:
         write, received, stamp_ns = self.writer.write, self.diagnostics.received, self._time.ns
@@ -211,7 +212,12 @@ class SessionRecorderNode(Node):
         self._publish_settings()
 
     def _publish_settings(self) -> None:
-        self._settings_publisher.publish(String(data=settings_text(self.writer.custom_data)))
+        """The settings, latched, for live views: the session's custom data, with the graph's
+        parameters captured so far where no one gave them (the recording takes them at close)."""
+        custom = self.writer.custom_data
+        if self._captured and not self._parameters_given:
+            custom = {**custom, CUSTOM_PARAMETERS: dumps(self._captured)}
+        self._settings_publisher.publish(String(data=settings_text(custom)))
 
     def end(self, stopped_by: str | None) -> None:
         """Say, before :meth:`close`, what stopped the run before its planned end (None: it
