@@ -40,9 +40,9 @@ function decoderOf(channel) {
 }
 
 function finish() {
-  process.stdout.write(JSON.stringify({ topics }) + '\n');
   client.close();
-  process.exit(0);
+  // Exit once the output is out: a pipe takes a large write asynchronously.
+  process.stdout.write(JSON.stringify({ topics }) + '\n', () => process.exit(0));
 }
 
 client.on('advertise', (channels) => {
@@ -73,7 +73,9 @@ client.on('message', ({ subscriptionId, data }) => {
   if (topic === '/force/reference') {
     entry.values.push(message.data);
   } else if (topic === '/session/settings') {
-    entry.values.push(message.data);
+    // The YAML's top-level keys (the texts are long): what each settings message held.
+    entry.values.push(message.data.split('\n').filter((l) => /^\S.*:/.test(l))
+      .map((l) => l.split(':')[0]));
   } else if (topic === '/view/band' && entry.values.length === 0) {
     entry.values.push(message);
   } else if (topic === '/diagnostics') {

@@ -32,7 +32,7 @@ from turning_force.nodes.live_view import (
     view_topic,
 )
 from turning_force.nodes.session_recorder import GRAPH_TOPICS, msgtype
-from turning_force.session.bag import typestore
+from turning_force.session.bag import CUSTOM_PARAMETERS, typestore
 from turning_force.session.codec import fields
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -129,12 +129,12 @@ def test_foxglove_client_decodes_what_the_recorder_logged_and_watch_shows_it(
     # The latched reference, published before the client subscribed: sent again to it.
     assert topics['/force/reference']['schemaName'] == 'std_msgs/msg/Float64'
     assert REFERENCE_N in topics['/force/reference']['values']
-    # The session's settings, latched by the recorder: YAML of its custom data, with the
-    # graph's parameters as the recorder captures them (fig8's SMC boundary layer among them).
+    # The session's settings, latched by the recorder: YAML of its custom data (its keys
+    # here), with the graph's parameters once the recorder has captured them.
     assert topics['/session/settings']['schemaName'] == 'std_msgs/msg/String'
     settings = topics['/session/settings']['values']
     assert 'turning_force.versions_json' in settings[0]
-    assert any('smc_epsilon_n' in text for text in settings), settings
+    assert any(CUSTOM_PARAMETERS in keys for keys in settings), settings
     # /diagnostics, once a second from every node.
     assert {f'{namespace}/{n}' for n in NODES} <= set(topics['/diagnostics']['values'])
     # The band about the reference the controller regulates to, fig8's allowed_error_n.
