@@ -549,3 +549,14 @@ def test_the_simulated_machines_inputs():
 def test_bad_simulated_inputs(changes, message):
     with pytest.raises(ConfigError, match=message):
         PlantSettings(**changes)
+
+
+def test_a_binary_teach_file_is_a_config_error_naming_it(tmp_path):
+    # The bridge node reads it at configure: one line, not a traceback (issue 17's poor list).
+    from turning_force.core.errors import ConfigError
+    from turning_force.core.pmc.shopfloor import load_teach_file
+
+    teach = tmp_path / 'teach.yaml'
+    teach.write_bytes(bytes(range(256)))
+    with pytest.raises(ConfigError, match=r'teach\.yaml: pmc_bridge\.teach_file: not a text'):
+        load_teach_file(teach)

@@ -204,6 +204,9 @@ def load_teach_file(path: str | Path) -> dict[str, TaughtTool]:
         return {}
     except OSError as exc:
         raise ConfigError(f'{path}: cannot read teach-in file: {exc.strerror}') from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f'{path}: pmc_bridge.teach_file: not a text (UTF-8) teach-in file '
+                          f'(byte {exc.start} of it)') from exc
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
