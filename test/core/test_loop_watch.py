@@ -13,8 +13,8 @@ import numpy.typing as npt
 import pytest
 from test_kernel import FIG8
 
+from turning_force.commands import population
 from turning_force.core.control import make_controller
-from turning_force.core.control.law import ControllerBase
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import load_experiment
 from turning_force.core.kernel.simulate import SimulationResult, simulate
@@ -29,8 +29,7 @@ INTERRUPTED = ['lathe_sim.depth_times_s=[0.0, 3.0, 4.0, 7.0, 8.0]',
 PRODUCT_ENTRY = f'pmc_bridge.air_cut_override_pct={ShopFloorSettings().air_cut_override_pct!r}'
 PRODUCT_QUANTISER = 'force_controller.quantiser=error_feedback'
 # Park's files keep the paper's law alone (no reaction); the product reacts.
-PRODUCT_REACTION = ('force_controller.oscillation_reaction='
-                    f'{ControllerBase.__dataclass_fields__["oscillation_reaction"].default}')
+PRODUCT_REACTION = f'force_controller.oscillation_reaction={population.PRODUCT_REACTION}'
 
 
 def run(*sets: str) -> SimulationResult:

@@ -147,24 +147,17 @@ def _check_writable(out: Path, flag: str, new: bool) -> None:
 
 
 def _check_bridge_files(experiment: Experiment, core: bool) -> None:
-    """The files the bridge reads, refused before anything runs: the teach-in file must be
-    text; and ``run --core`` refuses the machine file the graph refuses, as it refuses it."""
+    """The files the bridge reads, refused before anything runs, as the bridge refuses them:
+    the teach-in file; and for ``run --core`` the machine file the graph would load."""
     bridge = experiment.bridge
     if core:
         from turning_force.io.pmc_server import simulate_pmc
 
         simulate_pmc(bridge.machine_file, bridge.backend, bridge.override_table)
     if bridge.teach_file:
-        try:
-            Path(bridge.teach_file).read_bytes().decode('utf-8')
-        except FileNotFoundError:
-            pass   # a learning cut creates it
-        except OSError as exc:
-            raise TurningForceError(f'{bridge.teach_file}: cannot read teach-in file: '
-                                    f'{exc.strerror}') from exc
-        except UnicodeDecodeError as exc:
-            raise TurningForceError(f'{bridge.teach_file}: pmc_bridge.teach_file: not a text '
-                                    f'(UTF-8) teach-in file (byte {exc.start} of it)') from exc
+        from turning_force.core.pmc.shopfloor import load_teach_file
+
+        load_teach_file(bridge.teach_file)   # as the bridge reads it at configure
 
 
 def _run(args: argparse.Namespace) -> int:
