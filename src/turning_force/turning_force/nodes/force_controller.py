@@ -123,8 +123,8 @@ class ForceControllerNode(Node):
                 settings = self._controller.settings
                 text = (f'the loop oscillates: the force error swings by '
                         f'{settings.oscillation_swing_n:g} N or more, again and again; '
-                        f'oscillation_reaction {settings.oscillation_reaction}: the feed held at '
-                        f'{out.override_pct:g} % until the tool leaves the cut')
+                        f'oscillation_reaction {settings.oscillation_reaction} from '
+                        f'{out.override_pct:g} %, for the rest of the run')
                 if settings.oscillation_reaction == 'none':
                     text = text.split(';')[0] + '; oscillation_reaction none: regulating on'
                 self.diagnostics.warn(text, log=True)
