@@ -121,10 +121,6 @@ SAFE_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)   # libyaml's where 
 SHOWN = 3   # damaged stretches and gaps named in one line; the rest are counted
 
 
-def _ns(stamp: Any) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
 def _topic(name: str) -> str:
     """The relative topic name: strip any namespace in front of the graph's names."""
     for relative in READ:
