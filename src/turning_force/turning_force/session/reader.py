@@ -121,10 +121,6 @@ SAFE_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)   # libyaml's where 
 SHOWN = 3   # damaged stretches and gaps named in one line; the rest are counted
 
 
-def _ns(stamp: Any) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
 def _topic(name: str) -> str:
     """The relative topic name: strip any namespace in front of the graph's names."""
     for relative in READ:
@@ -778,25 +774,7 @@ class _Decoder:
         for found in self._channels.values():
             if found is not None and found[3].count:
                 tables.setdefault(found[2], []).append(found[3].finish())
-        return {topic: _joined(parts) for topic, parts in tables.items()}
-
-
-def _joined(tables: list[Table]) -> Table:
-    """Tables of one topic from several channels: the columns they share, one after the
-    other."""
-    if len(tables) == 1:
-        return tables[0]
-    shared = [p for p in tables[0].columns if all(p in t.columns for t in tables)]
-    out = Table(tables[0].msgtype, sum(t.count for t in tables))
-    for path in shared:
-        parts = [t.columns[path] for t in tables]
-        if parts[0].dtype.kind == 'S':
-            width = max(p.dtype.itemsize for p in parts)
-            parts = [p.astype(f'S{width}') for p in parts]
-        out.columns[path] = np.concatenate(parts)
-        if path in tables[0].lengths:
-            out.lengths[path] = np.concatenate([t.lengths[path] for t in tables])
-    return out
+        return {topic: codec.concat(parts) for topic, parts in tables.items()}
 
 
 def _stamps(table: Table) -> IntArray:
