@@ -238,6 +238,8 @@ class Wholeness:
         elif self.state == DAMAGED:
             text = (f'damaged: {self.blocks}{of} blocks read'
                     + (f'; {_listed(list(self.lost))}' if self.lost else ''))
+        elif self.unverified:   # nothing can tell a changed byte in those chunks
+            text = f'whole as far as can be told (unverifiable): {self.blocks}{of} blocks'
         else:
             text = f'whole: {self.blocks}{of} blocks'
         if self.repaired:
