@@ -182,3 +182,40 @@ def test_a_file_that_keeps_the_defaults_loads(tmp_path):
     path.write_text(format_parameters({'force_controller': {}}, ['nothing better than none']))
     fig8 = load_experiment(EXPERIMENTS / 'park1998_fig8.yaml')
     assert with_parameters_file(fig8, path).resolved_params() == fig8.resolved_params()
+
+
+def test_identify_a_production_session_keeps_the_prior_for_friction(capfd, tmp_path):
+    """Re-commissioning from yesterday's parts: Park's Fig. 8 job cut (core loop, recorded) on
+    Kim's FANUC whose friction rose 25 %; the job has no air move."""
+    fig8 = EXPERIMENTS / 'park1998_fig8.yaml'
+    bag = tmp_path / 'production'
+    assert main(['run', str(fig8), '--core', '--out', str(bag), '--json',
+                 '--set', 'lathe_sim.pmc_dead_time_s=0.08',
+                 '--set', 'lathe_sim.friction_at_min_feed_a=0.75',
+                 '--set', 'lathe_sim.friction_at_max_feed_a=0.4375']) == 0
+    capfd.readouterr()
+    assert main(['identify', str(bag), '--depths-mm', '1:3']) == 2
+    err = capfd.readouterr().err
+    assert 'no air move' in err and '--prior FILE' in err and err.count('\n') == 1
+    prior = tmp_path / 'commissioned.yaml'   # what the machine was commissioned with
+    prior.write_text('/**/force_estimator:\n  ros__parameters:\n'
+                     '    friction_at_min_feed_a: 0.6\n    friction_at_max_feed_a: 0.35\n')
+    out = tmp_path / 'recommissioned.yaml'
+    result = cli_json(capfd, ['identify', str(bag), '--depths-mm', '1:3', '--prior', str(prior),
+                              '--plants', '2', '--json', '--out', str(out)])
+    assert result['kept'] == ['friction'] and result['air_s'] == 0.0
+    assert result['force_controller']['model_dead_time_s'] == pytest.approx(0.08, abs=0.01)
+    # The prior's curve moved by the errors the cut found to the machine's (0.15 A up at the
+    # slowest feed, 0.0875 A at the fastest), within 0.03 A (5 N of force).
+    error = result['process']['parameters']['friction_error_at_min_a']
+    assert error['value'] == pytest.approx(0.15, abs=0.03) and error['std'] > 0
+    estimator = result['force_estimator']
+    assert estimator['friction_at_min_feed_a'] == pytest.approx(0.75, abs=0.03)
+    assert estimator['friction_at_max_feed_a'] == pytest.approx(0.4375, abs=0.03)
+    loaded = with_parameters_file(load_experiment(fig8), out)
+    assert loaded.estimator.friction.b_a == pytest.approx(estimator['friction_at_min_feed_a'],
+                                                          rel=1e-5)
+    # The printed form says where friction came from.
+    assert main(['identify', str(bag), '--depths-mm', '1:3', '--prior', str(prior),
+                 '--plants', '2']) == 0
+    assert 'kept from --prior' in capfd.readouterr().out

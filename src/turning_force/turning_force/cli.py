@@ -618,7 +618,8 @@ def _identify(args: argparse.Namespace) -> int:
 
     depths = _job_depths(args)
     settings = IdentifySettings(cut_force_n=args.cut_force_n)
-    ident, sessions = identify_sessions(args.bags, settings)
+    ident, sessions = identify_sessions(args.bags, settings,
+                                        [args.prior] if args.prior else None)
     cut_depth = args.cut_depth_mm or cut_depth_mm(sessions)
     if cut_depth is None:
         raise TurningForceError('--depths-mm needs --cut-depth-mm: the sessions do not say '
@@ -749,6 +750,10 @@ def _print_identification(ident: Any, ksd_min: float, ksd_max: float, margin: fl
           f'{process.residual_rms:.3g} N ({process.samples} samples)')
     print(line('K_s d', process['ksd_n_mm'], 1.0, 'N/mm'))
     print(line('cutting exponent g (F ~ f^g)', process['cutting_exponent']))
+    for end in ('min', 'max'):
+        if f'friction_error_at_{end}_a' in process.parameters:
+            print(line(f"prior's friction error at {end}", process[f'friction_error_at_{end}_a'],
+                       1.0, 'A'))
     print(line('G = K_s d / N^g', process['gain_n_per_mm_min'], 1.0, 'N/(mm/min)^g'))
     if cut_depth:
         ksd = process['ksd_n_mm']
@@ -756,12 +761,14 @@ def _print_identification(ident: Any, ksd_min: float, ksd_max: float, margin: fl
               f' N/mm^2    +/- {ksd.std / cut_depth:.2g}')
     print(line('tau_c', process['cutting_time_constant_s'], 1e3, 'ms'))
     friction, model = ident.friction, ident.friction_model
-    print(f'friction, Park Eq. 25 (air move, {model.min_feed_mm_min:g}-'
-          f'{model.max_feed_mm_min:g} mm/min): residual {friction.residual_rms:.3g} A')
+    print(f'friction, Park Eq. 25 ({model.min_feed_mm_min:g}-{model.max_feed_mm_min:g} mm/min): '
+          + (f'air move, residual {friction.residual_rms:.3g} A' if 'friction' not in ident.kept
+             else 'kept from --prior (no air move: not separable from the cutting force)'))
     print(line(f'at {model.min_feed_mm_min:g} mm/min', friction['at_min_feed_a'], 1.0, 'A'))
     print(line(f'at {model.max_feed_mm_min:g} mm/min', friction['at_max_feed_a'], 1.0, 'A'))
     print(line('force noise (one sample, cut)', ident.force_noise_n, 1.0, 'N'))
-    print(line('  of it the sensor (air move)', ident.air_noise_n, 1.0, 'N'))
+    print(line('  of it the sensor (air move)' if ident.air_s else "  taken as the sensor's",
+               ident.air_noise_n, 1.0, 'N'))
     print(line("  and the cut's own, r (+-r F)", ident.force_fluctuation, 1.0, ''))
     scaled = f', scaled to depths {depths[0]:g}-{depths[1]:g} mm' if depths else ''
     print(f'SMC bounds on K_s d: {ksd_min:.0f}-{ksd_max:.0f} N/mm (geometric about K_s d, '
@@ -989,7 +996,11 @@ def build_parser() -> argparse.ArgumentParser:
     ident = commands.add_parser('identify', help="the machine's model from commissioning "
                                 'sessions, as a parameters file')
     ident.add_argument('bags', nargs='+', help='sessions of the commissioning experiment (an '
-                       'air move and a cut with override steps)')
+                       'air move and a cut with override steps), or production cuts under '
+                       'regulation (with --prior)')
+    ident.add_argument('--prior', metavar='FILE',
+                       help='the earlier commissioning file: what a production session cannot '
+                       'identify (friction, without an air move) is kept from it')
     ident.add_argument('--out', help='parameters file to write (default: print it)')
     ident.add_argument('--cut-force-n', type=float, default=50.0,
                        help='a force estimate above this is the cut [N]')
