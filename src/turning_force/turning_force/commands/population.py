@@ -30,6 +30,7 @@ from turning_force.core.control.law import ControllerBase
 from turning_force.core.experiment import Experiment, assignments, load_experiment
 from turning_force.core.identify import IdentifySettings
 from turning_force.core.kernel.simulate import simulate
+from turning_force.core.plant.drive import FeedDriveSettings
 from turning_force.core.pmc.shopfloor import ShopFloorSettings
 from turning_force.core.verification import Prediction, verify
 
@@ -38,6 +39,7 @@ __all__ = ['JOBS', 'PARK_DRIFTS', 'Commissioned', 'Machine', 'commission', 'draw
 
 EXPERIMENTS = Path('config/experiments')   # the repository's, from its root
 PARK_KS_N_MM2 = 2200.0   # Park's steel at g = 1 (park1998_fig8.yaml)
+DRIVE = FeedDriveSettings()   # the lathe's defaults: a friction drift scales its curve
 PARK_FEED_MM_REV = 0.2
 # The jobs: depth_times_s, depth_mm, interpolation, duration.
 JOBS: Mapping[str, tuple[tuple[float, ...], tuple[float, ...], str, float]] = {
@@ -123,9 +125,10 @@ def _drift(kind: str, plant: Mapping[str, Any],
     if kind == 'process gain':
         return (f'process gain x{factor:.2f}', {'specific_cutting_force_n_mm2': round(
             plant['specific_cutting_force_n_mm2'] * factor, 1)})
-    if kind == 'friction':
-        return (f'friction x{factor:.2f}', {'friction_at_min_feed_a': round(0.3 * factor, 4),
-                                            'friction_at_max_feed_a': round(0.6 * factor, 4)})
+    if kind == 'friction':   # the lathe's friction curve, scaled as a whole
+        return (f'friction x{factor:.2f}', {
+            'friction_at_min_feed_a': round(DRIVE.friction_at_min_feed_a * factor, 4),
+            'friction_at_max_feed_a': round(DRIVE.friction_at_max_feed_a * factor, 4)})
     if plant['servo_model'] == 'first_order':
         return (f'servo x{factor:.2f} slower', {'servo_time_constant_s': round(
             plant['servo_time_constant_s'] * factor, 3)})
@@ -142,14 +145,15 @@ PARK_KIM: Mapping[str, Any] = {
 PARK_DRIFTS: Mapping[str, Mapping[str, Any]] = {
     'dead time +50 %': {'pmc_dead_time_s': 0.12},
     'process gain +40 %': {'specific_cutting_force_n_mm2': 1.4 * PARK_KS_N_MM2},
-    'feed friction +25 %': {'friction_at_min_feed_a': 0.75, 'friction_at_max_feed_a': 0.4375},
+    'feed friction +25 %': {'friction_at_min_feed_a': 1.25 * DRIVE.friction_at_min_feed_a,
+                            'friction_at_max_feed_a': 1.25 * DRIVE.friction_at_max_feed_a},
     'servo tau x1.8': {'servo_time_constant_s': 1.8 * 0.17},
 }
 
 
 def park_drifts() -> list[Machine]:
     """Park's Fig. 8 job (steps 1-2-3 mm) on :data:`PARK_KIM`, once per drift of
-    :data:`PARK_DRIFTS` (issue 16: lathe defaults for friction, 0.60 A and 0.35 A)."""
+    :data:`PARK_DRIFTS` (issue 16)."""
     return [Machine(k, PARK_KIM['seed'], PARK_KIM, 'steps', drift, drifted)
             for k, (drift, drifted) in enumerate(PARK_DRIFTS.items())]
 
