@@ -34,8 +34,8 @@ from turning_force.core.errors import ConfigError, short_repr
 from turning_force.core.settings import Settings
 from turning_force.core.yamlfile import read_yaml_file, replace_file
 
-__all__ = ['FIXED_CONTROLLER_KEYS', 'TOOL_BRIDGE_KEYS', 'ToolSections', 'load_tools_file',
-           'save_tool_section', 'tool_settings']
+__all__ = ['FIXED_CONTROLLER_KEYS', 'NO_TOOL', 'TOOL_BRIDGE_KEYS', 'ToolSections',
+           'load_tools_file', 'save_tool_section', 'tool_settings']
 
 # A tool's sections: tool number -> node -> parameter -> value.
 ToolSections = dict[int, dict[str, dict[str, Any]]]
@@ -50,6 +50,7 @@ FIXED_CONTROLLER_KEYS = frozenset({
     'initial_override_pct'})
 NODES = ('force_controller', 'pmc_bridge')
 MAX_TOOL = 9999   # a T code's tool number (FANUC: up to four digits)
+NO_TOOL = -1      # a tool input that reads no number (a BCD digit above 9): no section has it
 
 S = TypeVar('S', bound=Settings)
 

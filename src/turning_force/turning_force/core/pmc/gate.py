@@ -27,7 +27,13 @@ from turning_force.core.compiled import (
 from turning_force.core.pmc.overrides import OverrideTable, get_table
 from turning_force.core.pmc.settings import BridgeSettings, Decision, Reason
 from turning_force.core.pmc.shopfloor import NO_INPUTS, CutRecord, InputValues, Learned, TaughtTool
-from turning_force.core.tools import TOOL_BRIDGE_KEYS, ToolSections, load_tools_file, tool_settings
+from turning_force.core.tools import (
+    NO_TOOL,
+    TOOL_BRIDGE_KEYS,
+    ToolSections,
+    load_tools_file,
+    tool_settings,
+)
 
 __all__ = ['OverrideGate', 'cut_record']
 
@@ -895,9 +901,11 @@ class OverrideGate:
                           f'({"times" if s.operator_dial == "product" else "below"} the '
                           f'request {requested:.4g} %)'),
             GD_RISE: f'rising at most {s.rise_rate_pct_s:g} %/s toward {requested:.4g} %',
-            GD_TOOL: (f'tool {self.tool_number} has no section in the tools file '
-                      f"{s.tools_file}: not run on another tool's settings; feed handed back "
-                      'until a tool with one comes'),
+            GD_TOOL: ((f'tool {self.tool_number} has no section in the tools file '
+                       f'{s.tools_file}' if self.tool_number != NO_TOOL else
+                       'the tool input reads no tool number (a BCD digit above 9)')
+                      + ": not run on another tool's settings; feed handed back until a tool "
+                      'with a section comes'),
         }
         if code == GD_BREAKAGE:
             text = self._breakage_text() + again
