@@ -15,6 +15,7 @@ from turning_force.commands.run import run_lockstep
 from turning_force.core.experiment import parse_experiment
 from turning_force.core.kernel.batch import run_core
 from turning_force.session.reader import read_session, recorded_metrics
+from turning_force.session.replay import replay
 from turning_force.session.report import cut_table, write_html_report
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -55,3 +56,12 @@ def test_the_recorded_cut_log_and_the_report_say_which_tool_cut(two_tools, tmp_p
                              tmp_path / 'report.html').read_text()
     table = page[page.index('<h2>Cut log</h2>'):]
     assert '>T1</td>' in table and '>T2</td>' in table
+
+
+def test_replay_takes_the_recorded_tool(two_tools):
+    # FeedOverride records the tool each decision saw: replay switches where the run did.
+    _, session = two_tools
+    ends = session.t_s
+    assert [session.inputs(k).tool_number for k in (10, len(ends) - 10)] == [1, 2]
+    result = replay(session)
+    assert result.differing_overrides == 0 and result.differing_reasons == 0

@@ -50,7 +50,7 @@ FIXED_CONTROLLER_KEYS = frozenset({
     'initial_override_pct'})
 NODES = ('force_controller', 'pmc_bridge')
 MAX_TOOL = 9999   # a T code's tool number (FANUC: up to four digits)
-NO_TOOL = -1      # a tool input that reads no number (a BCD digit above 9): no section has it
+NO_TOOL = -2      # a tool input that reads no number (a BCD digit above 9): no section has it
 
 S = TypeVar('S', bound=Settings)
 

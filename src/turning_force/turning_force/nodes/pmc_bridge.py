@@ -552,6 +552,8 @@ class PmcBridgeNode(LifecycleNode):
         msg.engaged = written.engaged
         msg.alarm = written.alarm
         msg.stop_request = written.stop_request
+        tool = written.inputs.tool_number
+        msg.tool_number = -1 if tool is None else int(tool)
         if answers is not None:
             msg.header = answers.header   # answers this block (lock-step matches on it)
         else:
