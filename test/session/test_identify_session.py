@@ -219,3 +219,42 @@ def test_identify_a_production_session_keeps_the_prior_for_friction(capfd, tmp_p
     assert main(['identify', str(bag), '--depths-mm', '1:3', '--prior', str(prior),
                  '--plants', '2']) == 0
     assert 'kept from --prior' in capfd.readouterr().out
+
+
+def test_identify_writes_one_tools_section_keeping_the_others(commissioning, capfd, tmp_path):
+    # identify --tool 2: the commissioning cut's results become tool 2's controller section of
+    # a tools file; tool 1 and tool 2's bridge limits stay; the file then runs the program.
+    import yaml
+
+    from turning_force.core.errors import ConfigError
+    from turning_force.core.experiment import parse_experiment
+    from turning_force.core.tools import load_tools_file
+
+    root = EXPERIMENTS.parents[1]
+    tools = tmp_path / 'tools.yaml'
+    tools.write_text((root / 'config' / 'tools' / 'two_tools.yaml').read_text())
+    before = load_tools_file(tools)
+    result = cli_json(capfd, ['identify', str(commissioning), '--out', str(tools), '--json',
+                              '--depths-mm', '1:3', '--tool', '2', '--plants', '4'])
+    after = load_tools_file(tools)
+    assert after[1] == before[1] and after[2]['pmc_bridge'] == before[2]['pmc_bridge']
+    written = after[2]['force_controller']
+    assert written['model_dead_time_s'] == pytest.approx(
+        result['force_controller']['model_dead_time_s'], rel=1e-5)
+    assert 'force_estimator' not in after[2]   # the machine's, not a tool's
+    assert yaml.safe_load(tools.read_text())['tools'][1] == before[1]
+    # The program runs on it with the law the verification chose for the tool (the law is the
+    # machine's, one for all tools: another one is refused, naming it).
+    law = written['controller']
+    program = (EXPERIMENTS / 'two_tools.yaml').read_text().replace(
+        'config/tools/two_tools.yaml', str(tools)).replace('controller: smc', f'controller: {law}')
+    experiment = parse_experiment(program, 'two_tools.yaml')
+    assert experiment.controller.tools_file == str(tools)
+    other = 'smc' if law != 'smc' else 'pi'
+    with pytest.raises(ConfigError, match=f"tools.2.force_controller.controller = '{law}': the "
+                                          "law is the machine's"):
+        parse_experiment(program.replace(f'controller: {law}', f'controller: {other}'), 'x')
+    # Without --out there is no tools file to write: one line, exit 2.
+    assert main(['identify', str(commissioning), '--depths-mm', '1:3', '--tool', '2',
+                 '--plants', '4']) == 2
+    assert '--out TOOLS_FILE is needed' in capfd.readouterr().err

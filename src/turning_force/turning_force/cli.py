@@ -670,9 +670,34 @@ def _identify(args: argparse.Namespace) -> int:
                                         'in_band': chosen.in_band, 'plants': chosen.plants}),
         'Load with: turning-force run EXPERIMENT.yaml --params THIS_FILE',
         '       or: ros2 run ... --params-file EXPERIMENT.yaml --params-file THIS_FILE']
+    if args.tool is not None:
+        _write_tool_section(args, sections)
+        return 0
     text = format_parameters(sections, header)
     _emit_parameters(text, args)
     return 0
+
+
+def _write_tool_section(args: argparse.Namespace,
+                        sections: Mapping[str, Mapping[str, Any]]) -> None:
+    """``identify --tool N --out TOOLS_FILE``: the identified controller settings as tool N's
+    section of a tools file (core/tools.py), its other part (the bridge's limits) and the other
+    tools' sections kept. The estimator's settings are the machine's (its feed drive), not a
+    tool's: identify without --tool writes them."""
+    from turning_force.core.tools import load_tools_file, save_tool_section
+
+    if not args.out:
+        raise TurningForceError(f'identify --tool {args.tool}: --out TOOLS_FILE is needed (the '
+                                'tools file whose section for the tool it writes)')
+    path = Path(args.out)
+    section = load_tools_file(path).get(args.tool, {}) if path.exists() else {}
+    section['force_controller'] = {
+        name: value if isinstance(value, str) else float(f'{float(value):.6g}')
+        for name, value in sections['force_controller'].items()}
+    save_tool_section(path, args.tool, section)
+    if not args.json:
+        print(f'tool {args.tool}: its section written to {path} (the other tools kept); the '
+              "force_estimator settings are the machine's: identify without --tool writes them")
 
 
 PREDICTION = 'prediction:'   # the header line `identify` writes and `run --params` reads
@@ -1016,6 +1041,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help='depth of the commissioning cut (known from a simulated session)')
     ident.add_argument('--plants', type=int, default=50,
                        help='closed-loop verification: plants drawn about the identified one')
+    ident.add_argument('--tool', type=int, metavar='N',
+                       help="write the controller's settings as tool N's section of the tools "
+                       'file --out (docs/commissioning.md), keeping the other tools')
     ident.add_argument('--json', action='store_true', help='print one JSON object')
     ident.set_defaults(handler=_identify)
 

@@ -38,6 +38,7 @@ from pymodbus.exceptions import ModbusException
 from turning_force.core.errors import TurningForceError, short_repr
 from turning_force.core.pmc.machine import Machine, ModbusTcp
 from turning_force.core.pmc.shopfloor import InputValues
+from turning_force.core.tools import NO_TOOL
 
 __all__ = ['CONFLICT', 'CoilReader', 'InputValues', 'IoResult', 'ModbusPmc', 'PmcIoError',
            'pattern_text', 'quiet_pymodbus']
@@ -462,7 +463,13 @@ class ModbusPmc:
             if not 0.0 <= dial_pct <= top:
                 raise _Fault(f'operator dial: register {count} reads {dial_pct:g} %, outside '
                              f'the {self.machine.table.name} range [0, {top:g}] %')
-        return InputValues(enable, threading, dial_pct)
+        tool = None
+        if inputs.tool is not None:
+            try:
+                tool = inputs.tool.decode([raw[a] for a in inputs.tool.addresses])
+            except ValueError:   # no number (a turret indexing): no tool's settings either
+                tool = NO_TOOL
+        return InputValues(enable, threading, dial_pct, tool_number=tool)
 
     def _failed(self, fault: _Fault | str) -> str:
         self._link.close()

@@ -107,6 +107,7 @@ SIGNALS: dict[str, tuple[str, str]] = {
     'engaged': ('pmc/feed_override', 'engaged'),
     'alarm': ('pmc/feed_override', 'alarm'),
     'stop_request': ('pmc/feed_override', 'stop_request'),
+    'tool_number': ('pmc/feed_override', 'tool_number'),
     'force_n': ('sim/cutting_state', 'force_n'),
     'depth_mm': ('sim/cutting_state', 'depth_of_cut_mm'),
     'feed_mm_rev': ('sim/cutting_state', 'feed_mm_rev'),
@@ -543,10 +544,12 @@ class Session:
         session does not say, no answer or recorded before the bridge recorded them)."""
         s = self.signals
         enable, threading, dial = s['program_enable'], s['threading'], s['operator_dial_pct']
+        tool = s['tool_number']   # -1 not given; NaN: recorded before FeedOverride carried it
         given = ~(np.isnan(enable) | np.isnan(threading))
         return InputArrays(given, np.where(given & (enable >= 0), enable, -1).astype(np.int8),
                            np.where(given & (threading >= 0), threading, -1).astype(np.int8),
-                           np.where(given, dial, np.nan))
+                           np.where(given, dial, np.nan),
+                           tool_number=np.where(given & (tool != -1), tool, np.nan))
 
     def inputs(self, k: int) -> InputValues | None:
         """The machine's inputs the decision answering block ``k`` saw; None where the session

@@ -141,6 +141,7 @@ class ControllerBase(Settings):
     programmed_feed_mm_rev: float = shared.programmed_feed_mm_rev()
     override_table: str = override_table()
     max_feed_force_n: float = shared.max_feed_force_n()
+    tools_file: str = shared.tools_file()
     quantiser: str = setting('error_feedback', 'How a request becomes a PMC level: the '
                              "bridge's nearest level, or error feedback (noise shaping: the "
                              'levels sent average to the request)',

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from turning_force.core.compiled import Arr, compiled, entry, pymax, pymin, quantise
+from turning_force.core.compiled import Arr, compiled, entry, pymax, pymin, quantise, table_row
 from turning_force.core.control import dispatch
 from turning_force.core.control.law import (
     C_CONT,
@@ -30,6 +30,7 @@ from turning_force.core.control.law import (
     C_OSC_SWING,
     C_PERIOD,
     C_REF,
+    C_RPM,
     C_UNREACH,
     CS_CARRY,
     CS_ENGAGED,
@@ -56,10 +57,11 @@ from turning_force.core.control.law import (
     OUT_REACH,
     OUT_S,
     clip,
+    spindle_speed,
 )
 
-__all__ = ['control_applied', 'control_step', 'controller_applied', 'controller_start',
-           'controller_update']
+__all__ = ['control_applied', 'control_step', 'control_tool', 'controller_applied',
+           'controller_start', 'controller_tool', 'controller_update']
 
 # FeedOverride.REASON_NORMAL: the controller's request went through as asked.
 REASON_NORMAL = 0
@@ -306,3 +308,28 @@ def controller_start(cp: Arr, cs: Arr) -> None:
 def control_step(cp: Arr, cs: Arr, levels: Arr, force: float, rate: float, out: Arr) -> None:
     """:func:`controller_update` from Python (the nodes, replay)."""
     controller_update(cp, cs, levels, force, rate, out)
+
+
+@compiled
+def controller_tool(tools: np.ndarray, cp: np.ndarray, cs: np.ndarray, number: float) -> int:
+    """The machine's tool input says tool ``number``: its row of ``tools`` (the number, then
+    the parameters ``cp`` of its settings) becomes the parameters, the spindle speed in use
+    kept; returns the row, -1 where the table has none (the parameters stay). A tool changes in
+    air: the law starts afresh from the request held, as at an entry (the anti-windup of
+    :func:`controller_applied`), the quantiser's carry and the reachability clock cleared."""
+    row = table_row(tools, number)
+    if row < 0:
+        return row
+    rpm = cp[C_RPM]
+    for j in range(cp.size):
+        cp[j] = tools[row, j + 1]
+    spindle_speed(cp, rpm)
+    cs[CS_CARRY], cs[CS_PINNED], cs[CS_SIDE] = 0.0, 0.0, 0.0
+    law_reset(int(cp[C_KIND]), cp, cs)
+    return row
+
+
+@entry('int64(float64[:, ::1], float64[::1], float64[::1], float64)')
+def control_tool(tools: Arr, cp: Arr, cs: Arr, number: float) -> int:
+    """:func:`controller_tool` from Python (the controller node, the per-block chain)."""
+    return controller_tool(tools, cp, cs, number)
