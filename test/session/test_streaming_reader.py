@@ -13,7 +13,7 @@ from test_codec import check_table
 from bagfaults import REFERENCE, REFERENCE_BLOCKS, chunks, copy_reference, mcap_of
 from turning_force.session import codec
 from turning_force.session.bag import typestore
-from turning_force.session.reader import read_recording, read_session
+from turning_force.session.reader import read_recording, read_session, session_typestore
 from turning_force.session.scan import scan_mcap
 
 
@@ -60,8 +60,9 @@ def test_every_message_decodes_as_rosbags_decodes_it():
     """Our scan and codec (kept for speed: test/bench/bench_sessions.py) against rosbags'
     reader and CDR on every message of every topic of the reference session, every field: the
     topics the codec reads as arrays give the same values; the one type it has no fixed layout
-    for (diagnostics, nested sequences) is left to rosbags by the reader."""
-    store = typestore()
+    for (diagnostics, nested sequences) is left to rosbags by the reader. Both decode with the
+    session's own message definitions (a message may have gained a field since it was
+    recorded), as the reader does."""
     found: dict[int, list[tuple[int, bytes]]] = {}
 
     def sink(scan, data, channels, log_times, offsets, sizes):
@@ -70,6 +71,8 @@ def test_every_message_decodes_as_rosbags_decodes_it():
             found.setdefault(c, []).append((t, bytes(data[o:o + n])))
 
     scan = scan_mcap(mcap_of(REFERENCE), sink)
+    store = session_typestore(tuple(sorted(
+        {(s.name, s.encoding, s.data.decode()) for s in scan.schemas.values()})))
     theirs: dict[str, list] = {}
     with AnyReader([REFERENCE], default_typestore=store) as reader:
         for connection, _, raw in reader.messages():
