@@ -125,9 +125,14 @@ def test_u4_without_an_owner_register_the_coils_changing_under_a_bridge_is_found
         first = the_rig.bridge(context, executor, '/first', armed=True,
                                watchdog_period_s=WATCHDOG_S)
         assert driver.until(lambda: 60.0 in levels(the_rig))
-        the_rig.bridge(context, executor, '/second')
-        assert driver.until(lambda: bool(first.io_fault))
-        assert 'another writer on the module; refusing' in first.io_fault
+        second = the_rig.bridge(context, executor, '/second')
+        # The first sees the coils change under it and marks the conflict with the 0 %
+        # pattern; the second then reads a pattern it did not write: both refuse, and the coils
+        # are left at 0 % (feed hold), below every hand-back level.
+        assert driver.until(lambda: bool(first.io_fault) and bool(second.io_fault))
+        for bridge in (first, second):
+            assert 'another writer on the module; both refuse' in bridge.io_fault
+        assert levels(the_rig)[-1] == 0.0
 
 
 @pytest.mark.parametrize('step_s', [-30.0, 30.0])

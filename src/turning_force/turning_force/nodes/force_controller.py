@@ -138,7 +138,7 @@ class ForceControllerNode(Node):
                 text = (f'the loop oscillates: the force error swings by '
                         f'{settings.oscillation_swing_n:g} N or more, again and again; '
                         f'oscillation_reaction {settings.oscillation_reaction} from '
-                        f'{out.override_pct:g} %, for the rest of the run')
+                        f'{out.override_pct:g} %, until the run ends or the tool changes')
                 if settings.oscillation_reaction == 'none':
                     text = text.split(';')[0] + '; oscillation_reaction none: regulating on'
                 self.diagnostics.warn(text, log=True)

@@ -185,8 +185,8 @@ class ControllerBase(Settings):
         'than 0.7 of the one before and 0.08-2 s after it (a depth step gives two: its rise '
         'and its return; noise turns faster)', '-', low=2, high=100, dynamic=True)
     oscillation_reaction: str = setting(
-        'detune', 'What the oscillation alarm does for the rest of the run: a slow '
-        "integral law whose crossover is a sixth of the oscillation's frequency (detune), "
+        'detune', 'What the oscillation alarm does until the run ends or the tool changes: '
+        "a slow integral law whose crossover is a sixth of the oscillation's frequency (detune), "
         'hold the mean override of the last second (hold_mean), ask for the programmed feed '
         '(programmed_feed), or nothing but the alarm (none)',
         choices=OSCILLATION_REACTIONS, dynamic=True)

@@ -223,8 +223,9 @@ def _react(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> float:
 @compiled
 def _forget(cs: np.ndarray) -> None:
     """Out of the cut: the detector starts afresh at the next entry. The alarm and its
-    reaction hold for the rest of the run: a loop that cycled on this machine cycles again at
-    the next entry, and finding it again would cost another ``oscillation_swings`` swings."""
+    reaction hold until the run ends or the tool changes (:func:`controller_tool`): a loop
+    that cycled cycles again at the next entry, and finding it again would cost another
+    ``oscillation_swings`` swings."""
     cs[CS_O_DIR], cs[CS_O_COUNT] = 0.0, 0.0
     cs[CS_O_MEAN] = cs[CS_HELD]
 
@@ -316,7 +317,8 @@ def controller_tool(tools: np.ndarray, cp: np.ndarray, cs: np.ndarray, number: f
     the parameters ``cp`` of its settings) becomes the parameters, the spindle speed in use
     kept; returns the row, -1 where the table has none (the parameters stay). A tool changes in
     air: the law starts afresh from the request held, as at an entry (the anti-windup of
-    :func:`controller_applied`), the quantiser's carry and the reachability clock cleared."""
+    :func:`controller_applied`), the quantiser's carry and the reachability clock cleared. The
+    oscillation alarm ends: another tool is another loop, watched afresh."""
     row = table_row(tools, number)
     if row < 0:
         return row
@@ -325,6 +327,7 @@ def controller_tool(tools: np.ndarray, cp: np.ndarray, cs: np.ndarray, number: f
         cp[j] = tools[row, j + 1]
     spindle_speed(cp, rpm)
     cs[CS_CARRY], cs[CS_PINNED], cs[CS_SIDE] = 0.0, 0.0, 0.0
+    cs[CS_O_ALARM], cs[CS_O_DIR], cs[CS_O_COUNT] = 0.0, 0.0, 0.0
     law_reset(int(cp[C_KIND]), cp, cs)
     return row
 
