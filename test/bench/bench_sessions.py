@@ -2,9 +2,14 @@
 reported and replayed, each in its own process, timed (wall) with its peak memory (the child's
 ``ru_maxrss``).
 
-Side by side: reading it the old way (every message kept as bytes, deserialised one by one with
-rosbags' pure-Python CDR, a :class:`CurrentBlock` per block: the reader before issue 9, kept
-here as :func:`read_old`) and with today's streaming reader (array-level CDR chunk by chunk).
+Side by side, in one run: reading it the old way (every message kept as bytes, deserialised one by
+one with rosbags' pure-Python CDR, a :class:`CurrentBlock` per block: the reader before issue 9,
+kept here as :func:`read_old`); with the libraries alone, as well as they allow
+(:func:`read_libraries`: mcap's reader, rosbags' typestore, numpy); and with ours (scan.py's
+record scan, codec.py's array-level CDR chunk by chunk); and the scan alone, mcap's reader beside
+ours. Issue 14 keeps our scan and codec only where they are at least 10x faster than the
+libraries on this session (the in-process times); every message they read is checked equal to
+rosbags' in test/session/test_streaming_reader.py.
 Targets (issue 9): replay <= 10 s, report <= 10 s, peak memory reading back <= 400 MB.
 
     .venv/bin/python test/bench/bench_sessions.py [--hours H] [--keep DIR]
@@ -13,6 +18,7 @@ Targets (issue 9): replay <= 10 s, report <= 10 s, peak memory reading back <= 4
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import subprocess
 import sys
@@ -67,10 +73,79 @@ def read_old(bag: Path) -> int:
     return len(blocks)
 
 
+def read_libraries(bag: Path) -> int:
+    """The same signals read with the libraries alone, as well as they allow: mcap's reader
+    (its chunk index, decompression and CRC checks, the topics read only, no merge into
+    log-time order), rosbags' typestore deserialisation (its generated CDR code, the session's
+    own definitions), each message's fields taken as it is decoded (no message object kept),
+    numpy stacking and the same vectorised stamp matching as ours. Returns the number of
+    blocks."""
+    import numpy as np
+    from mcap.reader import make_reader
+
+    from turning_force.session.reader import READ, SIGNALS, _topic, session_typestore
+
+    samples = ('phase_u_a', 'phase_v_a', 'rotor_angle_rad', 'feed_rate_mm_min')
+    taken = {'servo/currents': ('sample_period_s', *samples)}
+    for topic, path in SIGNALS.values():
+        taken[topic] = (*taken.get(topic, ()), path)
+    columns: dict[str, dict[str, list[object]]] = {
+        t: {f: [] for f in ('stamp', *fields)} for t, fields in taken.items()}
+    with next(bag.glob('*.mcap')).open('rb') as stream:
+        reader = make_reader(stream, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary is not None
+        channels = [c for c in summary.channels.values() if _topic(c.topic) in READ]
+        schemas = {s.id: s for s in summary.schemas.values()}
+        store = session_typestore(tuple(sorted(
+            {(schemas[c.schema_id].name, schemas[c.schema_id].encoding,
+              schemas[c.schema_id].data.decode()) for c in channels})))
+        for schema, channel, message in reader.iter_messages(
+                topics=[c.topic for c in channels], log_time_order=False):
+            assert schema is not None
+            kept = columns.get(_topic(channel.topic))
+            if kept is None:   # pmc/cuts: none in a simulated session without a cut log
+                continue
+            msg = store.deserialize_cdr(message.data, schema.name)
+            stamp = msg.header.stamp  # type: ignore[attr-defined]
+            kept['stamp'].append(stamp.sec * 1_000_000_000 + stamp.nanosec)
+            for field, values in kept.items():
+                if field != 'stamp':
+                    values.append(getattr(msg, field))
+    currents = columns['servo/currents']
+    first = np.array(currents['stamp'], dtype=np.int64)
+    order = np.argsort(first, kind='stable')
+    period = np.array(currents['sample_period_s'])[order]
+    rows = {f: np.stack(currents[f])[order] for f in samples}
+    last = first[order] + np.round((rows['phase_u_a'].shape[1] - 1) * period * 1e9).astype(
+        np.int64)
+    for topic, path in SIGNALS.values():
+        unique, at_first = np.unique(np.array(columns[topic]['stamp'], dtype=np.int64),
+                                     return_index=True)
+        values = np.array(columns[topic][path], dtype=np.float64)
+        at = np.clip(np.searchsorted(unique, last), 0, max(unique.size - 1, 0))
+        found = unique[at] == last if unique.size else np.zeros(last.size, dtype=bool)
+        out = np.full(last.size, np.nan)
+        out[found] = values[at_first[at[found]]]
+    return int(first.size)
+
+
 def _child(which: str, bag: str) -> None:
     start = time.perf_counter()
     if which == 'old':
         n = read_old(Path(bag))
+    elif which == 'libraries':
+        n = read_libraries(Path(bag))
+    elif which == 'scan':   # our scan alone: every chunk read and checked, nothing decoded
+        from turning_force.session.scan import scan_mcap
+
+        n = sum(scan_mcap(next(Path(bag).glob('*.mcap')), lambda *_: None).counts.values())
+    elif which == 'mcap':   # mcap's reader alone: every message's bytes, CRCs checked
+        from mcap.reader import make_reader
+
+        with next(Path(bag).glob('*.mcap')).open('rb') as stream:
+            n = sum(1 for _ in make_reader(stream, validate_crcs=True).iter_messages(
+                log_time_order=False))
     else:
         from turning_force.session.reader import read_session
 
@@ -107,29 +182,38 @@ def main() -> None:
     folder.mkdir(parents=True, exist_ok=True)
     bag = folder / 'fig8_hour'
     seconds = round(3600 * args.hours)
-    rows = []
+    rows: list[tuple[str, float, float, float]] = []
     if not bag.exists():
         wall, mb, _ = timed([*CLI, 'run', str(FIG8), '--core', '--out', str(bag), '--json',
                              '--set', f'experiment.duration_s={seconds}'])
-        rows.append((f'run --core --out ({seconds} s of fig8)', wall, mb))
+        rows.append((f'run --core --out ({seconds} s of fig8)', wall, mb, math.nan))
     size_mb = next(bag.glob('*.mcap')).stat().st_size / 1e6
     me = [sys.executable, str(Path(__file__).resolve()), '--child']
-    old = timed([*me, 'old', str(bag)])
-    new = timed([*me, 'new', str(bag)])
-    rows.append(('read, old (rosbags per message)', old[0], old[1]))
-    rows.append(('read, new (streaming, arrays)', new[0], new[1]))
+    reads = {}
+    for which, what in (('old', 'read, old (rosbags per message, as before issue 9)'),
+                        ('libraries', 'read, libraries (mcap reader + rosbags + numpy)'),
+                        ('new', 'read, ours (scan.py + codec.py, arrays)'),
+                        ('mcap', '  scan only, mcap reader (CRCs checked)'),
+                        ('scan', '  scan only, ours (scan.py, CRCs checked)')):
+        wall, mb, out = timed([*me, which, str(bag)])
+        inner = float(out.split()[1])
+        reads[which] = inner
+        rows.append((what, wall, mb, inner))
     report = timed([*CLI, 'report', str(bag), '--out', str(folder / 'fig8_hour.png')])
-    rows.append(('turning-force report', report[0], report[1]))
+    rows.append(('turning-force report', report[0], report[1], math.nan))
     replay = timed([*CLI, 'replay', str(bag), '--json'])
-    rows.append(('turning-force replay', replay[0], replay[1]))
+    rows.append(('turning-force replay', replay[0], replay[1], math.nan))
     print(f'one session of {seconds} s of fig8 ({seconds * 100} blocks, {size_mb:.0f} MB MCAP), '
           f'{bag}')
-    print(f'  {"what":44s} {"wall [s]":>9s} {"peak [MB]":>10s}')
-    for what, wall, mb in rows:
-        print(f'  {what:44s} {wall:9.2f} {mb:10.0f}')
-    print(f'  read old/new: {old[0] / new[0]:.1f}x the time, {old[1] / new[1]:.1f}x the memory '
-          '(targets: replay <= 10 s, report <= 10 s, reading back <= 400 MB)')
-
+    print(f'  {"what":50s} {"wall [s]":>9s} {"peak [MB]":>10s} {"in-process [s]":>15s}')
+    for what, wall, mb, inner in rows:
+        print(f'  {what:50s} {wall:9.2f} {mb:10.0f} {inner:15.2f}')
+    print(f'  in-process, libraries / ours: read {reads["libraries"] / reads["new"]:.1f}x, '
+          f'scan {reads["mcap"] / reads["scan"]:.1f}x, decode (read less scan) '
+          f'{(reads["libraries"] - reads["mcap"]) / (reads["new"] - reads["scan"]):.1f}x; '
+          f'old / ours {reads["old"] / reads["new"]:.1f}x '
+          '(keep ours where >= 10x; targets: replay <= 10 s, report <= 10 s, '
+          'reading back <= 400 MB)')
 
 if __name__ == '__main__':
     main()

@@ -47,8 +47,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_realtime
@@ -185,22 +183,12 @@ def old_chain_seconds(bag: Path) -> float:
 
 
 def libraries_read_s(bag: Path) -> float:
-    """Reading a session with the libraries alone (issue 14): mcap's reader, rosbags' CDR per
-    message, the currents stacked into arrays."""
-    from mcap.reader import make_reader
-
-    from turning_force.session.bag import typestore
+    """Reading a session with the libraries alone (issue 14), as well as they allow:
+    :func:`bench_sessions.read_libraries`."""
+    from bench_sessions import read_libraries
 
     start = time.perf_counter()
-    store = typestore()
-    currents = []
-    with next(bag.glob('*.mcap')).open('rb') as stream:
-        for schema, channel, message in make_reader(stream).iter_messages():
-            msg = store.deserialize_cdr(message.data, schema.name)
-            if channel.topic.endswith('servo/currents'):
-                currents.append(msg)
-    for name in ('phase_u_a', 'phase_v_a', 'rotor_angle_rad', 'feed_rate_mm_min'):
-        np.stack([np.asarray(getattr(m, name)) for m in currents])
+    read_libraries(bag)
     return time.perf_counter() - start
 
 

@@ -1,9 +1,10 @@
 """Closed-loop what-if replay on generated machines (issue 18 item 2): for each machine of the
-commissioning issue's generator, its commissioning session and its job's session are recorded
-(the uncommissioned defaults cutting the job), then two candidates are tried on the job's
-session in closed loop (``replay --closed-loop --identified-from``) and against a real run of
-each on the true machine (drifted where it drifts). Printed: the prediction within 20 % or 1 N
-of the real run, and the two candidates ranked as their real runs rank::
+commissioning issue's generator, its job's session is recorded (the uncommissioned defaults
+cutting the job on the machine as it is then, drifted where it drifts), then two candidates are
+tried on that session in closed loop (``replay --closed-loop``: the plant identified from the
+session itself, on the controller's own override steps) and against a real run of each on the
+true machine. Printed: the prediction within 20 % or 1 N of the real run, and the two
+candidates ranked as their real runs rank::
 
     .venv/bin/python test/bench/bench_whatif.py --machines 20 --seed 15
 """
@@ -15,8 +16,7 @@ import tempfile
 from pathlib import Path
 
 from turning_force.commands.core_session import record_core
-from turning_force.commands.population import EXPERIMENTS, draw, job_experiment
-from turning_force.core.experiment import load_experiment
+from turning_force.commands.population import draw, job_experiment
 from turning_force.core.kernel.simulate import simulate
 from turning_force.session.whatif import what_if
 
@@ -34,14 +34,11 @@ def main() -> None:
     for machine in draw(args.machines, args.seed):
         with tempfile.TemporaryDirectory() as folder:
             base = Path(folder)
-            record_core(load_experiment(EXPERIMENTS / 'commissioning.yaml').with_sets(
-                machine.sets(after_drift=False)), base / 'commissioning')
             job = job_experiment(machine)
             record_core(job, base / 'job')
             pairs = []
             for candidate in CANDIDATES:
-                predicted = what_if(base / 'job', candidate,
-                                    [base / 'commissioning']).predicted[STEADY]
+                predicted = what_if(base / 'job', candidate).predicted[STEADY]
                 real = simulate(job.with_sets(list(candidate))).metrics[STEADY]
                 pairs.append((predicted, real))
         close = all(abs(p - r) <= max(0.2 * r, 1.0) for p, r in pairs)

@@ -92,7 +92,6 @@ def stepped(e: Experiment) -> CoreRun:
                                                   'spindle_speed_rpm')}
     command = None
     for k in range(n):
-        reference_now = chain.controller.settings.reference_force_n
         block = plant.step(applied)
         b = block.currents
         currents.t0_s[k] = b.t0_s
@@ -100,6 +99,7 @@ def stepped(e: Experiment) -> CoreRun:
         currents.rotor_angle_rad[k], currents.feed_rate_mm_min[k] = (b.rotor_angle_rad,
                                                                      b.feed_rate_mm_min)
         step = chain.step(b, inputs=block.inputs)
+        reference_now = chain.controller.reference_force_n   # the tool's, with a tools file
         trace._put(k, step, reference_now)
         command = step.command or command
         pct, sliding, reach, oscillating, drift, drift_size = (
@@ -108,7 +108,8 @@ def stepped(e: Experiment) -> CoreRun:
              float(command.oscillating), float(command.drift), command.drift_size))
         rows[k] = (b.t0_s + len(b) * b.sample_period_s, block.force_n[-1],
                    step.estimate.force_n, step.estimate.force_rate_n_s,
-                   e.controller.reference_force_n, block.depth_mm[-1], block.feed_mm_rev[-1],
+                   reference_now if e.controller.tools_file else e.controller.reference_force_n,
+                   block.depth_mm[-1], block.feed_mm_rev[-1],
                    pct, applied, sliding, reach, oscillating, block.spindle_speed_rpm,
                    int(step.decision.reason), drift, drift_size)
         plant_rows['spindle_speed_rpm'][k] = block.spindle_speed_rpm
@@ -118,8 +119,7 @@ def stepped(e: Experiment) -> CoreRun:
         plant_rows['feed_rate_mm_min'][k] = b.feed_rate_mm_min[-1]
         plant_rows['override_pct'][k] = applied
         applied = step.decision.applied_pct
-    plant_rows['specific_cutting_force_n_mm2'] = np.full(
-        n, e.plant.specific_cutting_force_n_mm2)
+    plant_rows['specific_cutting_force_n_mm2'] = e.plant.material_at(currents.t_end_s)
     t = {name: rows[:, i] for i, name in enumerate(TRACE_NAMES)}
     try:
         metrics = compute_metrics(t['t_s'], t['force_n'], t['reference_n'], t['depth_mm'],

@@ -236,3 +236,55 @@ def test_the_servo_model_is_the_plants_exactly(model, params):
     half = servo_response(model, params, 0.0375, command, 1e-3)[50:]
     assert 0.0 < np.max(np.abs(half - feed)) < np.max(np.abs(
         servo_response(model, params, 0.038, command, 1e-3)[50:] - feed))
+
+
+# Production cuts (issue 16 item 2): Park's Fig. 8 job regulated by the uncommissioned SMC, on
+# machines whose friction is not the one the estimator was set with (as after a drift).
+PRODUCTION = {
+    'kim_friction_drift': ['lathe_sim.pmc_dead_time_s=0.08',
+                           'lathe_sim.friction_at_min_feed_a=0.75',
+                           'lathe_sim.friction_at_max_feed_a=0.4375'],
+    'kienzle_second_order_taper': ['lathe_sim.cutting_exponent=0.75',
+                                   'lathe_sim.specific_cutting_force_n_mm2=1471.0',
+                                   'lathe_sim.servo_model=second_order',
+                                   'lathe_sim.servo_natural_freq_rad_s=12.0',
+                                   'lathe_sim.servo_damping=0.6',
+                                   'lathe_sim.pmc_dead_time_s=0.05',
+                                   'lathe_sim.current_noise_a=0.05',
+                                   'lathe_sim.depth_times_s=[0.0, 12.0]',
+                                   'lathe_sim.depth_mm=[1.0, 2.5]',
+                                   'lathe_sim.depth_interpolation=linear',
+                                   'lathe_sim.friction_at_min_feed_a=0.5'],
+}
+
+
+@pytest.mark.parametrize('machine', list(PRODUCTION))
+def test_a_production_cut_identifies_the_machine_in_closed_loop(fig8, machine):
+    job = load_experiment(fig8).with_sets(PRODUCTION[machine])
+    run = record(job, f'bags/{machine}')
+    with pytest.raises(IdentifyError, match=rf'^bags/{machine}: no air move: .*--prior FILE'):
+        identify([run.recording])
+    # The friction the estimator ran with (the lathe's defaults, 0.60 A and 0.35 A) as prior.
+    ident = identify([run.recording], prior_friction=job.estimator.friction)
+    truth = run.truth()
+    assert ident.kept == ('friction',) and ident.air_s == 0.0
+    assert ident.servo.model == job.plant.servo_model
+    assert abs(ident.dead_time_s.value - truth['dead_time_s']) <= job.run.control_period_s
+    for name in ('time_constant_s', 'natural_freq_rad_s', 'damping'):
+        if name in truth:
+            assert ident.servo[name].value == pytest.approx(truth[name], rel=0.10), name
+    # K_s d at the program's deepest cut, over the depths the program steps or tapers through.
+    assert ident.ksd_n_mm.value == pytest.approx(truth['ksd_n_mm'], rel=0.10)
+    assert abs(ident.process['cutting_exponent'].value - truth['cutting_exponent']) <= 0.05
+    assert ident.process['cutting_time_constant_s'].value == pytest.approx(
+        truth['cutting_time_constant_s'], rel=0.10)
+    # The prior's friction curve moved by the errors the cut found: at the feeds the cut ran
+    # most (its quartiles), within 0.02 A of the machine's (3 N of force; the prior was
+    # 0.07-0.15 A off there).
+    in_cut = run.recording.feed_rate_mm_min[run.depth_mm.min(axis=1) > 0]
+    feeds = np.percentile(in_cut, [25.0, 50.0, 75.0])
+    true = job.plant.friction.current_a(feeds)
+    assert np.all(np.abs(job.estimator.friction.current_a(feeds) - true) > 0.07)
+    np.testing.assert_allclose(ident.friction_model.current_a(feeds), true, atol=0.02)
+    errors = [ident.process[f'friction_error_at_{end}_a'] for end in ('min', 'max')]
+    assert all(e.std > 0 for e in errors)

@@ -117,6 +117,21 @@ def test_an_oscillating_loop_is_alarmed_within_2_s_and_the_reaction_calms_it():
     assert calmed.metrics['ripple_p2p_n'] < 25.0   # the issue's bound after the reaction
 
 
+def test_the_reaction_holds_across_an_interrupted_cut():
+    # The 100 ms dead-time machine cutting the three entries: the loop cycles in the first cut
+    # and is alarmed once. The reaction holds out of the cut (found again at each entry, the
+    # cycle would cost another four swings), waits on the entry feed until the force settles,
+    # and starts from the level that force implies: no cycle, and no entry above the bound.
+    result = run('lathe_sim.pmc_dead_time_s=0.1', PRODUCT_QUANTISER, PRODUCT_REACTION,
+                 PRODUCT_ENTRY, *INTERRUPTED)
+    assert result.metrics['oscillation_alarms'] == 1.0
+    assert result.metrics['entry_overshoot_n'] <= 100.0   # the issue's bound at an entry
+    t, force = result.trace['t_s'], result.trace['force_n']
+    for end_s in (7.0, 11.0):   # the second and third cuts' last second, in the cut
+        window = (t > end_s - 1.0) & (t < end_s - 0.01)
+        assert np.ptp(force[window]) < 25.0   # the issue's ripple bound
+
+
 @pytest.mark.parametrize('sets', [
     (),
     (PRODUCT_QUANTISER, 'lathe_sim.current_noise_a=0.1', 'lathe_sim.force_noise_fraction=0.05'),

@@ -194,3 +194,33 @@ def test_the_miss_budget_stays_inside_the_modules_watchdog():
                                           r'backend.module_watchdog_s = 100 ms$'):
         machine.modbus.check_miss_budget(0.01, 'm.yaml')
     machine.modbus.check_miss_budget(0.005, 'm.yaml')   # 50 ms < 100 ms
+
+
+def test_the_tool_in_use_reads_bcd_or_binary_inputs():
+    # FANUC puts the T code's number out on PMC signals; the ladder copies them to the module.
+    bcd = parse_machine(machine_data() | {'inputs': {'tool': {
+        'discrete_inputs': [8, 9, 10, 11, 12, 13, 14, 15]}}}, 'm.yaml').inputs.tool
+    assert bcd.code == 'bcd'   # the default: FANUC's T code signals
+    # T12: units 2 (0100, bit 0 first), tens 1 (1000).
+    assert bcd.decode([False, True, False, False, True, False, False, False]) == 12
+    with pytest.raises(ValueError, match='BCD digit 0 reads 12: not a tool number'):
+        bcd.decode([False, False, True, True, False, False, False, False])
+    binary = parse_machine(machine_data() | {'inputs': {'tool': {
+        'discrete_inputs': [8, 9, 10, 11, 12], 'code': 'binary', 'logic': 'inverted'}}},
+        'm.yaml').inputs.tool
+    assert binary.decode([True, False, True, True, True]) == 2   # inverted: 01000
+    assert parse_machine(machine_data() | {'inputs': {'tool': {
+        'discrete_inputs': [8, 9, 10, 11]}}}, 'm.yaml').inputs.discrete_inputs == (8, 9, 10, 11)
+
+
+@pytest.mark.parametrize(('tool', 'message'), [
+    ({'discrete_inputs': [8, 9, 10, 11, 12, 13]},
+     r'inputs.tool.discrete_inputs = \[8, 9, 10, 11, 12, 13\]: 6 bits: a bcd tool number takes '
+     'four bits a digit'),
+    ({'discrete_inputs': [8, 9, 10, 11], 'code': 'gray'},
+     r"inputs.tool.code = 'gray': expected one of bcd, binary"),
+    ({'discrete_inputs': [0, 9, 10, 11], 'strobe': 3}, r"inputs.tool: unknown keys \['strobe'\]"),
+])
+def test_a_bad_tool_input_is_named(tool, message):
+    with pytest.raises(ConfigError, match=message):
+        parse_machine(machine_data() | {'inputs': {'tool': tool}}, 'm.yaml')

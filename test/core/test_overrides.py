@@ -2,7 +2,6 @@
 
 import math
 
-import numpy as np
 import pytest
 
 from turning_force.core.errors import ConfigError
@@ -26,13 +25,6 @@ def test_fanuc_0t_has_sixteen_levels_of_ten_percent():
 ])
 def test_quantise_nearest_level_saturated(requested, applied):
     assert get_table('fanuc_0t_4bit').quantise(requested) == applied
-
-
-def test_quantise_array_matches_scalar():
-    table = get_table('fanuc_0t_4bit')
-    requests = np.linspace(-20.0, 180.0, 2001)
-    expected = [table.quantise(r) for r in requests]
-    np.testing.assert_array_equal(table.quantise_array(requests), expected)
 
 
 def test_quantise_refuses_non_finite():

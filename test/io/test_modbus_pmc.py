@@ -10,8 +10,9 @@ from dataclasses import replace
 import pytest
 
 from modbus_helpers import ServerProcess, local_machine, write_machine
-from turning_force.core.pmc.machine import DialInput
+from turning_force.core.pmc.machine import DialInput, ToolInput
 from turning_force.core.pmc.overrides import get_table
+from turning_force.core.tools import NO_TOOL
 from turning_force.io.modbus_pmc import CoilReader, ModbusPmc
 from turning_force.io.pmc_server import SimulatedPmcServer, Write
 
@@ -243,3 +244,19 @@ def test_the_pmc_server_says_where_it_listens_and_refuses_bad_ports_in_one_line(
         assert done.returncode == 2 and 'Traceback' not in done.stderr
         assert done.stderr.strip().endswith('expected a port, 0 to 65535')
         assert len(done.stderr) < 1000
+
+
+def test_the_tool_in_use_is_read_from_the_module(served):
+    # T12 in BCD on discrete inputs 8-15, as the ladder copies FANUC's T code signals; a
+    # pattern that is no number (a turret indexing) reads as no tool (NO_TOOL), which no
+    # tools-file section has: the bridge hands back rather than guess.
+    server, machine_on = served
+    machine = machine_on()
+    machine = replace(machine, inputs=replace(machine.inputs, tool=ToolInput(tuple(range(8, 16)))))
+    server.set_discrete_inputs(8, [False, True, False, False, True, False, False, False])
+    pmc = ModbusPmc(machine, 0.01)
+    assert pmc.connect() == ''
+    assert pmc.write(*machine.table.encode(50.0)).inputs.tool_number == 12
+    server.set_discrete_inputs(8, [True, True, True, True, False, False, False, False])
+    result = pmc.write(*machine.table.encode(50.0))
+    assert result.ok and result.inputs.tool_number == NO_TOOL

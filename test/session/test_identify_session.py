@@ -185,3 +185,79 @@ def test_a_file_that_keeps_the_defaults_loads(tmp_path):
     path.write_text(format_parameters({'force_controller': {}}, ['nothing better than none']))
     fig8 = load_experiment(EXPERIMENTS / 'park1998_fig8.yaml')
     assert with_parameters_file(fig8, path).resolved_params() == fig8.resolved_params()
+
+
+def test_identify_a_production_session_keeps_the_prior_for_friction(capfd, tmp_path):
+    """Re-commissioning from yesterday's parts: Park's Fig. 8 job cut (core loop, recorded) on
+    Kim's FANUC whose friction rose 25 %; the job has no air move."""
+    fig8 = EXPERIMENTS / 'park1998_fig8.yaml'
+    bag = tmp_path / 'production'
+    assert main(['run', str(fig8), '--core', '--out', str(bag), '--json',
+                 '--set', 'lathe_sim.pmc_dead_time_s=0.08',
+                 '--set', 'lathe_sim.friction_at_min_feed_a=0.75',
+                 '--set', 'lathe_sim.friction_at_max_feed_a=0.4375']) == 0
+    capfd.readouterr()
+    assert main(['identify', str(bag), '--depths-mm', '1:3']) == 2
+    err = capfd.readouterr().err
+    assert 'no air move' in err and '--prior FILE' in err and err.count('\n') == 1
+    prior = tmp_path / 'commissioned.yaml'   # what the machine was commissioned with
+    prior.write_text('/**/force_estimator:\n  ros__parameters:\n'
+                     '    friction_at_min_feed_a: 0.6\n    friction_at_max_feed_a: 0.35\n')
+    out = tmp_path / 'recommissioned.yaml'
+    result = cli_json(capfd, ['identify', str(bag), '--depths-mm', '1:3', '--prior', str(prior),
+                              '--plants', '2', '--json', '--out', str(out)])
+    assert result['kept'] == ['friction'] and result['air_s'] == 0.0
+    assert result['force_controller']['model_dead_time_s'] == pytest.approx(0.08, abs=0.01)
+    # The prior's curve moved by the errors the cut found to the machine's (0.15 A up at the
+    # slowest feed, 0.0875 A at the fastest), within 0.03 A (5 N of force).
+    error = result['process']['parameters']['friction_error_at_min_a']
+    assert error['value'] == pytest.approx(0.15, abs=0.03) and error['std'] > 0
+    estimator = result['force_estimator']
+    assert estimator['friction_at_min_feed_a'] == pytest.approx(0.75, abs=0.03)
+    assert estimator['friction_at_max_feed_a'] == pytest.approx(0.4375, abs=0.03)
+    loaded = with_parameters_file(load_experiment(fig8), out)
+    assert loaded.estimator.friction.b_a == pytest.approx(estimator['friction_at_min_feed_a'],
+                                                          rel=1e-5)
+    # The printed form says where friction came from.
+    assert main(['identify', str(bag), '--depths-mm', '1:3', '--prior', str(prior),
+                 '--plants', '2']) == 0
+    assert 'kept from --prior' in capfd.readouterr().out
+
+
+def test_identify_writes_one_tools_section_keeping_the_others(commissioning, capfd, tmp_path):
+    # identify --tool 2: the commissioning cut's results become tool 2's controller section of
+    # a tools file; tool 1 and tool 2's bridge limits stay; the file then runs the program.
+    import yaml
+
+    from turning_force.core.errors import ConfigError
+    from turning_force.core.experiment import parse_experiment
+    from turning_force.core.tools import load_tools_file
+
+    root = EXPERIMENTS.parents[1]
+    tools = tmp_path / 'tools.yaml'
+    tools.write_text((root / 'config' / 'tools' / 'two_tools.yaml').read_text())
+    before = load_tools_file(tools)
+    result = cli_json(capfd, ['identify', str(commissioning), '--out', str(tools), '--json',
+                              '--depths-mm', '1:3', '--tool', '2', '--plants', '4'])
+    after = load_tools_file(tools)
+    assert after[1] == before[1] and after[2]['pmc_bridge'] == before[2]['pmc_bridge']
+    written = after[2]['force_controller']
+    assert written['model_dead_time_s'] == pytest.approx(
+        result['force_controller']['model_dead_time_s'], rel=1e-5)
+    assert 'force_estimator' not in after[2]   # the machine's, not a tool's
+    assert yaml.safe_load(tools.read_text())['tools'][1] == before[1]
+    # The program runs on it with the law the verification chose for the tool (the law is the
+    # machine's, one for all tools: another one is refused, naming it).
+    law = written['controller']
+    program = (EXPERIMENTS / 'two_tools.yaml').read_text().replace(
+        'config/tools/two_tools.yaml', str(tools)).replace('controller: smc', f'controller: {law}')
+    experiment = parse_experiment(program, 'two_tools.yaml')
+    assert experiment.controller.tools_file == str(tools)
+    other = 'smc' if law != 'smc' else 'pi'
+    with pytest.raises(ConfigError, match=f"tools.2.force_controller.controller = '{law}': the "
+                                          "law is the machine's"):
+        parse_experiment(program.replace(f'controller: {law}', f'controller: {other}'), 'x')
+    # Without --out there is no tools file to write: one line, exit 2.
+    assert main(['identify', str(commissioning), '--depths-mm', '1:3', '--tool', '2',
+                 '--plants', '4']) == 2
+    assert '--out TOOLS_FILE is needed' in capfd.readouterr().err

@@ -624,7 +624,8 @@ def _identify(args: argparse.Namespace) -> int:
 
     depths = _job_depths(args)
     settings = IdentifySettings(cut_force_n=args.cut_force_n)
-    ident, sessions = identify_sessions(args.bags, settings)
+    ident, sessions = identify_sessions(args.bags, settings,
+                                        [args.prior] if args.prior else None)
     cut_depth = args.cut_depth_mm or cut_depth_mm(sessions)
     if cut_depth is None:
         raise TurningForceError('--depths-mm needs --cut-depth-mm: the sessions do not say '
@@ -677,9 +678,34 @@ def _identify(args: argparse.Namespace) -> int:
                                         'in_band': chosen.in_band, 'plants': chosen.plants}),
         'Load with: turning-force run EXPERIMENT.yaml --params THIS_FILE',
         '       or: ros2 run ... --params-file EXPERIMENT.yaml --params-file THIS_FILE']
+    if args.tool is not None:
+        _write_tool_section(args, sections)
+        return 0
     text = format_parameters(sections, header)
     _emit_parameters(text, args)
     return 0
+
+
+def _write_tool_section(args: argparse.Namespace,
+                        sections: Mapping[str, Mapping[str, Any]]) -> None:
+    """``identify --tool N --out TOOLS_FILE``: the identified controller settings as tool N's
+    section of a tools file (core/tools.py), its other part (the bridge's limits) and the other
+    tools' sections kept. The estimator's settings are the machine's (its feed drive), not a
+    tool's: identify without --tool writes them."""
+    from turning_force.core.tools import load_tools_file, save_tool_section
+
+    if not args.out:
+        raise TurningForceError(f'identify --tool {args.tool}: --out TOOLS_FILE is needed (the '
+                                'tools file whose section for the tool it writes)')
+    path = Path(args.out)
+    section = load_tools_file(path).get(args.tool, {}) if path.exists() else {}
+    section['force_controller'] = {
+        name: value if isinstance(value, str) else float(f'{float(value):.6g}')
+        for name, value in sections['force_controller'].items()}
+    save_tool_section(path, args.tool, section)
+    if not args.json:
+        print(f'tool {args.tool}: its section written to {path} (the other tools kept); the '
+              "force_estimator settings are the machine's: identify without --tool writes them")
 
 
 PREDICTION = 'prediction:'   # the header line `identify` writes and `run --params` reads
@@ -757,6 +783,10 @@ def _print_identification(ident: Any, ksd_min: float, ksd_max: float, margin: fl
           f'{process.residual_rms:.3g} N ({process.samples} samples)')
     print(line('K_s d', process['ksd_n_mm'], 1.0, 'N/mm'))
     print(line('cutting exponent g (F ~ f^g)', process['cutting_exponent']))
+    for end in ('min', 'max'):
+        if f'friction_error_at_{end}_a' in process.parameters:
+            print(line(f"prior's friction error at {end}", process[f'friction_error_at_{end}_a'],
+                       1.0, 'A'))
     print(line('G = K_s d / N^g', process['gain_n_per_mm_min'], 1.0, 'N/(mm/min)^g'))
     if cut_depth:
         ksd = process['ksd_n_mm']
@@ -764,12 +794,14 @@ def _print_identification(ident: Any, ksd_min: float, ksd_max: float, margin: fl
               f' N/mm^2    +/- {ksd.std / cut_depth:.2g}')
     print(line('tau_c', process['cutting_time_constant_s'], 1e3, 'ms'))
     friction, model = ident.friction, ident.friction_model
-    print(f'friction, Park Eq. 25 (air move, {model.min_feed_mm_min:g}-'
-          f'{model.max_feed_mm_min:g} mm/min): residual {friction.residual_rms:.3g} A')
+    print(f'friction, Park Eq. 25 ({model.min_feed_mm_min:g}-{model.max_feed_mm_min:g} mm/min): '
+          + (f'air move, residual {friction.residual_rms:.3g} A' if 'friction' not in ident.kept
+             else 'kept from --prior (no air move: not separable from the cutting force)'))
     print(line(f'at {model.min_feed_mm_min:g} mm/min', friction['at_min_feed_a'], 1.0, 'A'))
     print(line(f'at {model.max_feed_mm_min:g} mm/min', friction['at_max_feed_a'], 1.0, 'A'))
     print(line('force noise (one sample, cut)', ident.force_noise_n, 1.0, 'N'))
-    print(line('  of it the sensor (air move)', ident.air_noise_n, 1.0, 'N'))
+    print(line('  of it the sensor (air move)' if ident.air_s else "  taken as the sensor's",
+               ident.air_noise_n, 1.0, 'N'))
     print(line("  and the cut's own, r (+-r F)", ident.force_fluctuation, 1.0, ''))
     scaled = f', scaled to depths {depths[0]:g}-{depths[1]:g} mm' if depths else ''
     print(f'SMC bounds on K_s d: {ksd_min:.0f}-{ksd_max:.0f} N/mm (geometric about K_s d, '
@@ -997,7 +1029,11 @@ def build_parser() -> argparse.ArgumentParser:
     ident = commands.add_parser('identify', help="the machine's model from commissioning "
                                 'sessions, as a parameters file')
     ident.add_argument('bags', nargs='+', help='sessions of the commissioning experiment (an '
-                       'air move and a cut with override steps)')
+                       'air move and a cut with override steps), or production cuts under '
+                       'regulation (with --prior)')
+    ident.add_argument('--prior', metavar='FILE',
+                       help='the earlier commissioning file: what a production session cannot '
+                       'identify (friction, without an air move) is kept from it')
     ident.add_argument('--out', help='parameters file to write (default: print it)')
     ident.add_argument('--cut-force-n', type=float, default=50.0,
                        help='a force estimate above this is the cut [N]')
@@ -1013,6 +1049,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help='depth of the commissioning cut (known from a simulated session)')
     ident.add_argument('--plants', type=int, default=50,
                        help='closed-loop verification: plants drawn about the identified one')
+    ident.add_argument('--tool', type=int, metavar='N',
+                       help="write the controller's settings as tool N's section of the tools "
+                       'file --out (docs/commissioning.md), keeping the other tools')
     ident.add_argument('--json', action='store_true', help='print one JSON object')
     ident.set_defaults(handler=_identify)
 

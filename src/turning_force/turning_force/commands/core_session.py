@@ -172,7 +172,10 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
         'pmc_code': code, 'pmc_bits': np.array([hand_back], dtype=bool),
         'table': table.name, 'armed': False, 'reason': 1,
         'detail': 'inactive: programmed feed', 'program_enable': -1, 'threading': -1,
-        'operator_dial_pct': np.nan}, 1)
+        'operator_dial_pct': np.nan, 'tool_number': -1}, 1)
+    # The tool each decision saw (FeedOverride's tool_number: -1 where none is given).
+    seen_tool = experiment.plant.inputs_array(c.t_end_s)[:, 4]
+    tool_number = np.where(np.isnan(seen_tool), -1, seen_tool).astype(np.int32)
     cuts, cut_blocks = _cuts(store, run, experiment, end_ns)
     details = _Details(chain.estimate_detail)
     for start in range(0, n, BATCH_BLOCKS):
@@ -226,7 +229,8 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
                 'reason': chain.reason[k], 'program_enable': chain.program_enable[k],
                 'threading': chain.threading[k],
                 'operator_dial_pct': chain.operator_dial_pct[k], 'engaged': chain.engaged[k],
-                'alarm': chain.alarm[k], 'stop_request': chain.stop_request[k]}, None),
+                'alarm': chain.alarm[k], 'stop_request': chain.stop_request[k],
+                'tool_number': tool_number[k]}, None),
         }
         pieces: list[tuple[bytes, IntArray, IntArray, int]] = []   # bytes, offsets, block, topic
         for topic, (columns, keep) in messages.items():

@@ -31,14 +31,16 @@ from turning_force.core.control.law import ControllerBase
 from turning_force.core.experiment import Experiment, assignments, load_experiment
 from turning_force.core.identify import Identification, IdentifySettings
 from turning_force.core.kernel.simulate import simulate
+from turning_force.core.plant.drive import FeedDriveSettings
 from turning_force.core.pmc.shopfloor import ShopFloorSettings
 from turning_force.core.verification import Prediction, verify
 
-__all__ = ['JOBS', 'Commissioned', 'Machine', 'commission', 'draw', 'identified_sets',
-           'identify_machine', 'run_job']
+__all__ = ['JOBS', 'PARK_DRIFTS', 'Commissioned', 'Machine', 'commission', 'draw',
+           'identified_sets', 'identify_machine', 'park_drifts', 'run_job']
 
 EXPERIMENTS = Path('config/experiments')   # the repository's, from its root
 PARK_KS_N_MM2 = 2200.0   # Park's steel at g = 1 (park1998_fig8.yaml)
+DRIVE = FeedDriveSettings()   # the lathe's defaults: a friction drift scales its curve
 PARK_FEED_MM_REV = 0.2
 # The jobs: depth_times_s, depth_mm, interpolation, duration.
 JOBS: Mapping[str, tuple[tuple[float, ...], tuple[float, ...], str, float]] = {
@@ -124,14 +126,37 @@ def _drift(kind: str, plant: Mapping[str, Any],
     if kind == 'process gain':
         return (f'process gain x{factor:.2f}', {'specific_cutting_force_n_mm2': round(
             plant['specific_cutting_force_n_mm2'] * factor, 1)})
-    if kind == 'friction':
-        return (f'friction x{factor:.2f}', {'friction_at_min_feed_a': round(0.3 * factor, 4),
-                                            'friction_at_max_feed_a': round(0.6 * factor, 4)})
+    if kind == 'friction':   # the lathe's friction curve, scaled as a whole
+        return (f'friction x{factor:.2f}', {
+            'friction_at_min_feed_a': round(DRIVE.friction_at_min_feed_a * factor, 4),
+            'friction_at_max_feed_a': round(DRIVE.friction_at_max_feed_a * factor, 4)})
     if plant['servo_model'] == 'first_order':
         return (f'servo x{factor:.2f} slower', {'servo_time_constant_s': round(
             plant['servo_time_constant_s'] * factor, 3)})
     return (f'servo x{factor:.2f} slower', {'servo_natural_freq_rad_s': round(
         plant['servo_natural_freq_rad_s'] / factor, 2)})
+
+
+# Park's Fig. 8 machine (park1998_fig8.yaml) with Kim's 80 ms PMC dead time, and issue 16's drifts.
+PARK_KIM: Mapping[str, Any] = {
+    'seed': 1, 'pmc_dead_time_s': 0.08, 'servo_model': 'first_order',
+    'servo_time_constant_s': 0.17, 'cutting_exponent': 1.0,
+    'specific_cutting_force_n_mm2': PARK_KS_N_MM2, 'current_noise_a': 0.02,
+    'force_noise_fraction': 0.0, 'spindle_speed_rpm': 600.0, 'cutting_time_constant_s': 0.05}
+PARK_DRIFTS: Mapping[str, Mapping[str, Any]] = {
+    'dead time +50 %': {'pmc_dead_time_s': 0.12},
+    'process gain +40 %': {'specific_cutting_force_n_mm2': 1.4 * PARK_KS_N_MM2},
+    'feed friction +25 %': {'friction_at_min_feed_a': 1.25 * DRIVE.friction_at_min_feed_a,
+                            'friction_at_max_feed_a': 1.25 * DRIVE.friction_at_max_feed_a},
+    'servo tau x1.8': {'servo_time_constant_s': 1.8 * 0.17},
+}
+
+
+def park_drifts() -> list[Machine]:
+    """Park's Fig. 8 job (steps 1-2-3 mm) on :data:`PARK_KIM`, once per drift of
+    :data:`PARK_DRIFTS` (issue 16)."""
+    return [Machine(k, PARK_KIM['seed'], PARK_KIM, 'steps', drift, drifted)
+            for k, (drift, drifted) in enumerate(PARK_DRIFTS.items())]
 
 
 def job_experiment(machine: Machine, *, after_drift: bool = True,
@@ -162,18 +187,23 @@ class Commissioned:
 
 
 def identify_machine(machine: Machine, experiments: Path = EXPERIMENTS,
-                     ) -> tuple[Identification, float]:
+                     production: Sequence[str] | None = None) -> tuple[Identification, float]:
     """The commissioning experiment recorded on ``machine`` before it drifts, and ``identify``
-    on it: the identification and the commissioning cut's depth [mm]."""
+    on it: the identification and the commissioning cut's depth [mm]. With ``production`` (the
+    settings it was cut with), re-commissioning from yesterday's parts instead: the job cut
+    with them on the machine as it is now (drifted), ``identify`` on that production session
+    (what it cannot identify kept from those settings, as ``--prior``)."""
     from turning_force.commands.core_session import record_core
     from turning_force.session.identify import cut_depth_mm, identify_sessions
 
-    experiment = load_experiment(experiments / 'commissioning.yaml').with_sets(
-        machine.sets(after_drift=False))
+    experiment = (load_experiment(experiments / 'commissioning.yaml').with_sets(
+        machine.sets(after_drift=False)) if production is None else
+        job_experiment(machine, experiments=experiments).with_sets(list(production)))
     with tempfile.TemporaryDirectory() as folder:
-        session = Path(folder) / 'commissioning'
+        session = Path(folder) / 'session'
         record_core(experiment, session)
-        ident, sessions = identify_sessions([session], IdentifySettings())
+        ident, sessions = identify_sessions([session], IdentifySettings(),
+                                            None if production is None else ())
     return ident, cut_depth_mm(sessions) or 1.0
 
 
@@ -192,11 +222,12 @@ def identified_sets(machine: Machine, ident: Identification, cut_depth: float,
     return identified, assignments('force_controller', monitor)
 
 
-def commission(machine: Machine, experiments: Path = EXPERIMENTS,
-               plants: int = 50) -> Commissioned:
+def commission(machine: Machine, experiments: Path = EXPERIMENTS, plants: int = 50,
+               production: Sequence[str] | None = None) -> Commissioned:
     """The user's flow on ``machine`` before it drifts: the commissioning experiment recorded,
-    ``identify`` with the job's depth range, verified in closed loop on the job."""
-    ident, cut_depth = identify_machine(machine, experiments)
+    ``identify`` with the job's depth range, verified in closed loop on the job. With
+    ``production``, re-commissioning from yesterday's parts (:func:`identify_machine`)."""
+    ident, cut_depth = identify_machine(machine, experiments, production)
     identified, monitor = identified_sets(machine, ident, cut_depth, experiments=experiments)
     # The user verifies on the job's file: the machine as commissioned, not its drift.
     job = job_experiment(machine, after_drift=False, experiments=experiments)

@@ -361,3 +361,13 @@ def delayed(state: np.ndarray, queue_at: int, index_slot: int, length: int,
     state[queue_at + q] = value
     state[index_slot] = (q + 1) % length
     return out
+
+
+@compiled
+def table_row(table: np.ndarray, key: float) -> int:
+    """The first row of ``table`` whose column 0 is ``key`` (a tool's number in a per-tool
+    table), -1 where none is."""
+    for row in range(table.shape[0]):
+        if table[row, 0] == key:
+            return row
+    return -1

@@ -302,7 +302,8 @@ def _check_consistent(e: Experiment) -> None:
     # Settings several nodes declare must agree: one value, set once under /**.
     tied = (('control_period_s', e.run, (e.plant, e.controller, e.bridge)),
             ('max_feed_force_n', e.bridge, (e.controller,)),
-            ('override_table', e.bridge, (e.controller, e.plant)))
+            ('override_table', e.bridge, (e.controller, e.plant)),
+            ('tools_file', e.bridge, (e.controller,)))
     for key, first, others in tied:
         for section in others:
             if getattr(section, key) != getattr(first, key):
@@ -314,6 +315,8 @@ def _check_consistent(e: Experiment) -> None:
             f'force_controller.reference_force_n = {e.controller.reference_force_n!r}: not below '
             f'pmc_bridge.overload_force_n = {e.bridge.overload_force_n!r}: the regulated force '
             'would hold the feed')
+    if e.bridge.tools_file:
+        _check_tools(e)
     bridge = e.bridge
     if bridge.air_cut_override_pct > 0 and bridge.engage_force_n >= e.controller.reference_force_n:
         raise ConfigError(
@@ -322,3 +325,29 @@ def _check_consistent(e: Experiment) -> None:
             'would never count as in the cut, and the entry feed (air_cut_override_pct = '
             f'{e.bridge.air_cut_override_pct!r} %) would hold the whole cut; lower '
             'engage_force_n and exit_force_n, or set air_cut_override_pct to 0')
+
+
+def _check_tools(e: Experiment) -> None:
+    """Refuse a tools file a program cannot run on: a tool the simulated program changes to
+    without a section (never run on another tool's settings), a section the nodes refuse, a
+    tool whose reference would hold the feed."""
+    from turning_force.core.tools import TOOL_BRIDGE_KEYS, load_tools_file, tool_settings
+
+    path = e.bridge.tools_file
+    tools = load_tools_file(path)
+    if e.plant.tool_wired:
+        missing = sorted({n for n in e.plant.tool_numbers if n not in tools})
+        if missing:
+            raise ConfigError(f'lathe_sim.tool_numbers = {list(e.plant.tool_numbers)}: tool '
+                              f'{", ".join(map(str, missing))} has no section in the tools file '
+                              f'{path} (sections: {sorted(tools) or "none"}); a tool is not run '
+                              "on another's settings: `turning-force identify --tool N --out "
+                              f'{path}` writes one')
+    controllers = tool_settings(e.controller, tools, path)
+    bridges = tool_settings(e.bridge, tools, path, TOOL_BRIDGE_KEYS)
+    for number, controller in controllers.items():
+        if controller.reference_force_n >= bridges[number].overload_force_n:
+            raise ConfigError(
+                f'{path}: tools.{number}: reference_force_n {controller.reference_force_n!r} N '
+                f'not below overload_force_n {bridges[number].overload_force_n!r} N: the '
+                'regulated force would hold the feed')

@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -50,17 +50,21 @@ from scipy import optimize, signal
 
 from turning_force.core.errors import TurningForceError
 from turning_force.core.plant.drive import CurrentForceMap, FrictionModel
+from turning_force.core.plant.settings import DepthProfile
 from turning_force.core.settings import Settings, setting
 
 __all__ = ['Estimate', 'Fit', 'Identification', 'IdentifyError', 'IdentifySettings',
-           'MapCalibration', 'Recording', 'calibrate_map', 'identify', 'servo_matrices',
-           'servo_response']
+           'MapCalibration', 'Recording', 'calibrate_map', 'identify', 'program_depths_mm',
+           'servo_matrices', 'servo_response']
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 SERVO_DECIMATION = 5
 CREEP_FRACTION = 0.05   # the friction curve's vertex: 5 % of the programmed feed
+# A production cut's override steps that identify the process without held levels: a regulated
+# cut steps at every depth change and dithers between the two levels about the force.
+MIN_CUT_STEPS = 10
 
 
 class IdentifyError(TurningForceError, ValueError):
@@ -98,7 +102,10 @@ class Recording:
     applied during it, the recorded force estimate and whether the current sensor saturated,
     and the dynamometer's mean force where one was recorded (NaN elsewhere). Per sample
     (arrays of shape ``(blocks, samples)``): the measured feed rate and the q-axis current.
-    ``name`` (the bag) is what errors name.
+    ``name`` (the bag) is what errors name. ``depth_mm``, per sample, is the depth of cut the
+    program cuts (the job's depth profile, :func:`program_depths_mm`): a production session
+    cuts several depths, and the process gain is fitted per millimetre of its deepest cut;
+    None for one depth (the commissioning cut).
     """
 
     name: str
@@ -113,6 +120,7 @@ class Recording:
     feed_rate_mm_min: FloatArray
     current_q_a: FloatArray
     measured_force_n: FloatArray | None = None
+    depth_mm: FloatArray | None = None
 
     def __post_init__(self) -> None:
         blocks = self.block_start_s.size
@@ -123,6 +131,8 @@ class Recording:
             raise IdentifyError(f'{self.name}: per-block and per-sample arrays do not pair up')
         if self.measured_force_n is not None and self.measured_force_n.shape != (blocks,):
             raise IdentifyError(f'{self.name}: one measured force per block expected')
+        if self.depth_mm is not None and self.depth_mm.shape != self.feed_rate_mm_min.shape:
+            raise IdentifyError(f'{self.name}: one depth of cut per sample expected')
 
     @property
     def blocks(self) -> int:
@@ -144,6 +154,14 @@ class Recording:
         """The feed the override commands, per block (Park's v_c before the dead time)."""
         out: FloatArray = self.override_pct / 100.0 * self.programmed_feed_rate_mm_min
         return out
+
+
+def program_depths_mm(profile: DepthProfile, block_start_s: FloatArray, samples: int,
+                      sample_period_s: float) -> FloatArray:
+    """The depth of cut the program cuts at every sample (``Recording.depth_mm``): the depth
+    profile on the session's time line from its first block."""
+    times = (block_start_s - block_start_s[0])[:, None] + np.arange(samples) * sample_period_s
+    return profile.at(times)
 
 
 @dataclass(frozen=True)
@@ -176,7 +194,9 @@ class Fit:
 
 @dataclass(frozen=True)
 class Identification:
-    """What a commissioning session says about the machine."""
+    """What a commissioning or production session says about the machine. ``kept`` names
+    what the sessions could not identify and was kept from the earlier commissioning
+    (``friction``: a production cut has no air move)."""
 
     sessions: tuple[str, ...]
     servo: Fit                        # the model chosen
@@ -190,6 +210,7 @@ class Identification:
     spindle_speed_rpm: float
     air_s: float                      # seconds of air move and of cut used
     cut_s: float
+    kept: tuple[str, ...] = ()
 
     @property
     def dead_time_s(self) -> Estimate:
@@ -358,11 +379,14 @@ class _FeedData:
     feed_mm_min: FloatArray
     command_mm_min: FloatArray
     sample_period_s: float
+    stride: int            # the ARX guess's: every stride-th equation, prime to the block
 
 
 def _feed_data(rec: Recording) -> _FeedData:
+    stride = next((k for k in (4, 3, 5, 7, 11, 13) if math.gcd(k, rec.samples) == 1), 1)
     return _FeedData(rec.feed_rate_mm_min.ravel(),
-                     np.repeat(rec.commanded_feed_mm_min(), rec.samples), rec.sample_period_s)
+                     np.repeat(rec.commanded_feed_mm_min(), rec.samples), rec.sample_period_s,
+                     stride)
 
 
 def _arx_guess(feeds: Sequence[_FeedData], max_delay_s: float) -> tuple[int, FloatArray]:
@@ -371,17 +395,20 @@ def _arx_guess(feeds: Sequence[_FeedData], max_delay_s: float) -> tuple[int, Flo
     b2 u[n-2-d]`` (equation error, linear least squares). Ties (a first-order servo fits at the
     true delay and one sample less) go to the longest delay."""
     dt = feeds[0].sample_period_s
-    delays = range(round(max_delay_s / dt) + 1)
+    max_delay = round(max_delay_s / dt)
+    delays = range(max_delay + 1)
     rss = np.full(len(delays), np.inf)
     coefficients: list[FloatArray] = []
     for d in delays:
         rows, targets = [], []
         for f in feeds:
             y, u = f.feed_mm_min, f.command_mm_min
-            start = 2 + d
-            if y.size <= start + 2:
+            if y.size <= max_delay + 4:
                 continue
-            n = np.arange(start, y.size, 4)   # every fourth equation: as exact, 4x faster
+            # The same equations for every delay, every ``stride``-th (as exact, faster), the
+            # stride prime to the block: the command steps on block boundaries, and a set of
+            # equations that never meets a step's answer fits the AR part alone, exactly.
+            n = np.arange(2 + max_delay, y.size, f.stride)
             rows.append(np.column_stack([y[n - 1], y[n - 2], u[n - 1 - d], u[n - 2 - d]]))
             targets.append(y[n])
         if not rows:
@@ -527,6 +554,12 @@ def _segments(rec: Recording, s: IdentifySettings) -> _Segments:
     engaged = (np.nan_to_num(rec.estimated_force_n, nan=0.0) > s.cut_force_n).astype(float)
     runs = [(p.start, p.stop) for p in _plateaus(engaged, 0, rec.blocks) if p.level_pct]
     per_block = rec.block_period_s
+    # A regulated cut that limit-cycles dips below cut_force_n with the tool in the work: runs
+    # apart by less than a plateau are one cut (Eq. 1 holds through the dips).
+    gap = s.min_plateau_s / per_block
+    for k in range(len(runs) - 1, 0, -1):
+        if runs[k][0] - runs[k - 1][1] < gap:
+            runs[k - 1:k + 1] = [(runs[k - 1][0], runs[k][1])]
     cut = None
     air_stop = rec.blocks
     if runs:
@@ -545,9 +578,12 @@ def _long_plateaus(rec: Recording, segment: tuple[int, int], s: IdentifySettings
     return [p for p in _plateaus(rec.override_pct, *segment) if p.stop - p.start >= need]
 
 
-def _check_sessions(recordings: Sequence[Recording], s: IdentifySettings
-                    ) -> list[_Segments]:
-    """The segments of every session, or an error naming the session and what it lacks."""
+def _check_sessions(recordings: Sequence[Recording], s: IdentifySettings, prior: bool = False,
+                    ) -> tuple[list[_Segments], bool]:
+    """The segments of every session and whether the air move identifies friction, or an error
+    naming the session and what it lacks. With a ``prior`` friction curve a session without an
+    air move (a production cut) passes, and its cut needs either two override levels held or
+    ``MIN_CUT_STEPS`` of the controller's own override steps."""
     need_s = 4 * s.min_plateau_s
     segments = []
     for rec in recordings:
@@ -560,7 +596,7 @@ def _check_sessions(recordings: Sequence[Recording], s: IdentifySettings
             raise IdentifyError(
                 f'{rec.name}: no override steps: the PMC applied {rec.override_pct[0]:g} % for '
                 f'all {rec.blocks} blocks; record the commissioning experiment (law staircase, '
-                'bridge armed)')
+                'bridge armed) or a regulated cut')
         segments.append(_segments(rec, s))
     names = ', '.join(r.name for r in recordings)
     if not any(seg.cut for seg in segments):
@@ -568,10 +604,11 @@ def _check_sessions(recordings: Sequence[Recording], s: IdentifySettings
             f'{names}: no cut: the force estimate never stays above cut_force_n '
             f'({s.cut_force_n:g} N) for {s.cut_settle_s:g} s; the process gain needs a cut '
             'with override steps')
-    if not any(seg.air for seg in segments):
+    if not any(seg.air for seg in segments) and not prior:
         raise IdentifyError(
             f'{names}: no air move: the force estimate is above {s.cut_force_n:g} N from the '
-            'first block; the friction curve (Park Eq. 25) needs the feed in air before the cut')
+            'first block; the friction curve (Park Eq. 25) needs the feed in air before the cut, '
+            "or the earlier commissioning file's (--prior FILE)")
     for rec, seg in zip(recordings, segments, strict=True):
         if seg.cut is None:
             continue
@@ -582,17 +619,22 @@ def _check_sessions(recordings: Sequence[Recording], s: IdentifySettings
                 f'{rec.name}: saturated: the current sensor saturated in {saturated.size} '
                 f'blocks of the cut (from {first:.2f} s): the force cannot be read there; cut '
                 'shallower or lower the staircase')
+    use_air = True
     for part in ('air', 'cut'):
-        found = [(rec, _long_plateaus(rec, getattr(seg, part), s))
-                 for rec, seg in zip(recordings, segments, strict=True) if getattr(seg, part)]
-        levels = {p.level_pct for _, plateaus in found for p in plateaus}
-        if len(levels) < 2:
+        found = [(rec, getattr(seg, part)) for rec, seg in zip(recordings, segments, strict=True)
+                 if getattr(seg, part)]
+        levels = {p.level_pct for rec, span in found for p in _long_plateaus(rec, span, s)}
+        steps = sum(int(np.count_nonzero(np.diff(rec.override_pct[a:b]))) for rec, (a, b) in found)
+        if part == 'air' and len(levels) < 2 and prior:
+            use_air = False   # friction from the prior, the noise from the cut
+        elif len(levels) < 2 and (part == 'air' or steps < MIN_CUT_STEPS):
             what = 'air move' if part == 'air' else 'cut'
             raise IdentifyError(
                 f'{names}: too short: the {what} ({_seconds(recordings, segments, part):.2f} s) '
-                f'holds {len(levels)} '
-                f'override level(s) for {s.min_plateau_s:g} s or more; two are needed')
-    return segments
+                f'holds {len(levels)} override level(s) for {s.min_plateau_s:g} s or more; two '
+                'are needed' + ('' if part == 'air' else
+                                f', or {MIN_CUT_STEPS} override steps (it has {steps})'))
+    return segments, use_air
 
 
 def _seconds(recordings: Sequence[Recording], segments: Sequence[_Segments], part: str) -> float:
@@ -649,15 +691,6 @@ def _identify_friction(recordings: Sequence[Recording], segments: Sequence[_Segm
                v.size), model
 
 
-def _held_friction_a(model: FrictionModel, feed_mm_min: FloatArray) -> FloatArray:
-    """Eq. 25 held at its end values outside the range measured. The estimator's model lets
-    friction fall to zero below the slowest feed (a stuck slide); in the cut the slide moves,
-    and a servo that overshoots a step down passes below the slowest level for a moment."""
-    v = np.clip(np.abs(feed_mm_min), model.min_feed_mm_min, model.max_feed_mm_min)
-    out: FloatArray = model.a_a_per_mm_min2 * (v - model.min_feed_mm_min) ** 2 + model.b_a
-    return out
-
-
 def _process_response(feed_mm_min: FloatArray, tau_c_s: float, dt_s: float) -> FloatArray:
     """Eq. 1's lag on the sampled feed from rest, discretised as the DAQ samples it (zero-order
     hold: the force at a sample answers the feed up to the one before)."""
@@ -667,7 +700,7 @@ def _process_response(feed_mm_min: FloatArray, tau_c_s: float, dt_s: float) -> F
 
 
 def _identify_process(recordings: Sequence[Recording], segments: Sequence[_Segments],
-                      friction: FrictionModel, s: IdentifySettings
+                      friction: FrictionModel, s: IdentifySettings, prior: bool = False,
                       ) -> tuple[Fit, Estimate, FloatArray, list[tuple[FloatArray, float]]]:
     """Eq. 1 in the cut with Kienzle's exponent: ``F = G v_a^g / (1 + tau_c s)``, ``G = K_s d /
     N^g``, each window's starting force free. Returns the fit, the force noise, the residual,
@@ -677,7 +710,12 @@ def _identify_process(recordings: Sequence[Recording], segments: Sequence[_Segme
     held at 1 a Kienzle material's force is a curve the line misses, and the miss read as
     noise (issue 15: 24.5 N of model error against 3.7 N of noise). The noise is measured apart
     from the model's error: from the sample-to-sample differences of the residual on the
-    plateaus (:func:`_white_noise`), which a smooth misfit does not reach."""
+    plateaus (:func:`_white_noise`), which a smooth misfit does not reach.
+
+    With ``prior`` (a friction curve not measured in this session: a production cut) the
+    prior curve's error is fitted too: Eq. 25's two end values moved (``friction_error_at_min_a``,
+    ``..._at_max_a``; the curve's basis at the feeds the cut ran, through the current map).
+    The cut's depth steps change the force and not the friction, and separate them."""
     windows = []
     for rec, seg in zip(recordings, segments, strict=True):
         if seg.cut is None:
@@ -685,21 +723,31 @@ def _identify_process(recordings: Sequence[Recording], segments: Sequence[_Segme
         a, b = seg.cut
         feed = rec.feed_rate_mm_min[a:b].ravel()
         force = rec.current_map.force_n(rec.current_q_a[a:b].ravel()
-                                        - _held_friction_a(friction, feed))
-        windows.append((rec, (a, b), np.maximum(feed, 0.0), force))
+                                        - friction.current_a(feed))
+        # The program's depth per millimetre of its deepest: K_s d is fitted at that depth.
+        depth = (np.ones_like(feed) if rec.depth_mm is None
+                 else rec.depth_mm[a:b].ravel() / float(np.max(rec.depth_mm)))
+        windows.append((rec, (a, b), np.maximum(feed, 0.0), force, depth))
     dt = recordings[0].sample_period_s
     n_windows = len(windows)
     scale = float(np.median(np.concatenate([w[2] for w in windows]))) or 1.0
+    # Eq. 25's basis: the curve at its slowest feed (1 A flat) and its rise to the fastest.
+    span = friction.max_feed_mm_min - friction.min_feed_mm_min
+    per_force = recordings[0].current_map.per_force_a_n
+    basis = np.column_stack([
+        replace(friction, a_a_per_mm_min2=a, b_a=b).current_a(
+            np.concatenate([w[2] for w in windows])) / per_force
+        for a, b in ((0.0, 1.0), (1.0 / span ** 2, 0.0))])[:, :2 if prior else 0]
 
     def design(tau_c: float, g: float) -> FloatArray:
         """The columns the model is linear in: the lagged feed^g, each window's start."""
         columns = []
-        for j, (_, _, feed, _) in enumerate(windows):
+        for j, (_, _, feed, _, depth) in enumerate(windows):
             start = np.zeros((feed.size, n_windows))
             start[:, j] = math.exp(-dt / tau_c) ** np.arange(feed.size)
-            columns.append(np.column_stack([_process_response((feed / scale) ** g, tau_c, dt),
-                                            start]))
-        return np.vstack(columns)
+            columns.append(np.column_stack([
+                _process_response(depth * (feed / scale) ** g, tau_c, dt), start]))
+        return np.column_stack([np.vstack(columns), basis])
 
     target = np.concatenate([w[3] for w in windows])
 
@@ -719,8 +767,9 @@ def _identify_process(recordings: Sequence[Recording], segments: Sequence[_Segme
     tau0, g0 = grid[int(np.argmin([linear_part(tau, g)[0] for tau, g in grid]))]
     theta0 = linear_part(tau0, g0)[1]
     x0 = np.array([max(float(theta0[0]), 1e-9), tau0, g0, *theta0[1:]])
+    free = n_windows + basis.shape[1]
     best = optimize.least_squares(residual, x0, bounds=(
-        [0.0, 1e-4, 0.2, *[-np.inf] * n_windows], [np.inf, 10.0, 2.0, *[np.inf] * n_windows]),
+        [0.0, 1e-4, 0.2, *[-np.inf] * free], [np.inf, 10.0, 2.0, *[np.inf] * free]),
         x_scale='jac')
     res = np.asarray(best.fun, dtype=float)
     cov = _covariance(best, res)
@@ -743,11 +792,15 @@ def _identify_process(recordings: Sequence[Recording], segments: Sequence[_Segme
         'cutting_exponent': Estimate(g, float(std[2])),
         'cutting_time_constant_s': Estimate(float(best.x[1]), float(std[1]), 's'),
     }
+    if prior:   # the end values' errors
+        rise = math.sqrt(max(cov[-1, -1] + cov[-2, -2] + 2.0 * cov[-1, -2], 0.0))
+        params['friction_error_at_min_a'] = Estimate(float(best.x[-2]), float(std[-2]), 'A')
+        params['friction_error_at_max_a'] = Estimate(float(best.x[-2] + best.x[-1]), rise, 'A')
     fit = Fit('park1998_eq1_kienzle', params, float(np.sqrt(np.mean(res ** 2))), 'N', res.size)
     settled: list[tuple[FloatArray, float]] = []
     offset = 0
     tau_c = float(best.x[1])
-    for rec, (a, b), feed, force in windows:
+    for rec, (a, b), feed, force, _ in windows:
         part = res[offset:offset + feed.size].reshape(b - a, rec.samples)
         forces = force.reshape(b - a, rec.samples)
         offset += feed.size
@@ -805,29 +858,52 @@ def _white_noise(pieces: Sequence[FloatArray]) -> Estimate:
     return Estimate(sigma, sigma / math.sqrt(2.0 * (n - 1.0)), 'N')
 
 
-def identify(recordings: Sequence[Recording],
-             settings: IdentifySettings | None = None) -> Identification:
-    """Identify the machine from one or more commissioning sessions (see the module's text).
+def identify(recordings: Sequence[Recording], settings: IdentifySettings | None = None,
+             prior_friction: FrictionModel | None = None) -> Identification:
+    """Identify the machine from one or more commissioning or production sessions (see the
+    module's text).
+
+    A production session (the job cut under regulation) is identified in closed loop from the
+    controller's own override steps: the servo and dead time from the applied override against
+    the feed, the process from the cut over the program's depths (``Recording.depth_mm``). It
+    has no air move to separate friction from the force: ``prior_friction`` (the earlier
+    commissioning's curve) is kept for it, and the sensor's noise is taken as the cut's (no
+    fluctuation apart).
 
     Raises :class:`IdentifyError` naming the session and what it lacks: no override steps, too
-    short, no cut, no air move, or a current sensor saturated in the cut.
+    short, no cut, no air move (and no prior), or a current sensor saturated in the cut.
     """
     s = settings or IdentifySettings()
     if not recordings:
         raise IdentifyError('identify: no sessions given')
-    segments = _check_sessions(recordings, s)
+    segments, use_air = _check_sessions(recordings, s, prior_friction is not None)
     servo, candidates = _identify_servo(recordings, s)
-    friction, friction_model = _identify_friction(recordings, segments, s)
-    process, noise, _, settled = _identify_process(recordings, segments, friction_model, s)
-    air = _air_noise(recordings, segments, s)
+    if use_air:
+        friction, friction_model = _identify_friction(recordings, segments, s)
+    else:
+        assert prior_friction is not None
+        friction_model = prior_friction
+    process, noise, _, settled = _identify_process(recordings, segments, friction_model, s,
+                                                   prior=not use_air)
+    if not use_air:   # the prior curve moved by the errors the cut found
+        moved = {end: friction_model.parameters()[f'friction_at_{end}_feed_a']
+                 + process[f'friction_error_at_{end}_a'].value for end in ('min', 'max')}
+        friction_model = FrictionModel.from_end_points(
+            friction_model.min_feed_mm_min, friction_model.max_feed_mm_min, moved['min'],
+            moved['max'])
+        friction = Fit('prior_and_cut', {
+            f'at_{end}_feed_a': Estimate(moved[end], process[f'friction_error_at_{end}_a'].std,
+                                         'A') for end in ('min', 'max')}, math.nan, 'A', 0)
+    air = _air_noise(recordings, segments, s) if use_air else noise
 
     return Identification(
         sessions=tuple(r.name for r in recordings), servo=servo, servo_candidates=candidates,
         friction=friction, friction_model=friction_model, process=process,
-        force_noise_n=noise, air_noise_n=air, force_fluctuation=_fluctuation(air, settled),
+        force_noise_n=noise, air_noise_n=air,
+        force_fluctuation=_fluctuation(air, settled) if use_air else Estimate(0.0, 0.0),
         spindle_speed_rpm=recordings[0].spindle_speed_rpm,
-        air_s=_seconds(recordings, segments, 'air'),
-        cut_s=_seconds(recordings, segments, 'cut'))
+        air_s=_seconds(recordings, segments, 'air') if use_air else 0.0,
+        cut_s=_seconds(recordings, segments, 'cut'), kept=() if use_air else ('friction',))
 
 
 # --- the current-to-force map ------------------------------------------------------------------

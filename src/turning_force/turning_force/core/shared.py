@@ -19,6 +19,7 @@ __all__ = [
     'programmed_feed_mm_rev',
     'spindle_speed_rpm',
     'spindle_speed_stale_s',
+    'tools_file',
 ]
 
 
@@ -56,3 +57,12 @@ def max_feed_force_n() -> Any:
     return setting(5000.0, 'Largest feed force the feed axis, its drive and its current sensor '
                    'are rated for; the overload limit and the reference stay below it', 'N',
                    low=0.0, low_open=True, high=1e5)
+
+
+def tools_file() -> Any:
+    """Per-tool settings (core/tools.py): the controller's and the bridge's, per tool number."""
+    return setting('', 'Tools file (YAML, one section per tool number: the reference, the '
+                   "law's commissioning results, the entry level and limits; `turning-force "
+                   "identify --tool N` writes one): the machine's tool input (machine/tool) "
+                   "selects the section; a tool without one is never run on another's; empty: "
+                   'these settings for every tool')

@@ -4,6 +4,8 @@ the file (experiment files, ``--params`` overlays, machine files, ``--set`` valu
 from __future__ import annotations
 
 import math
+import os
+import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -12,7 +14,8 @@ from yaml.nodes import MappingNode
 
 from turning_force.core.errors import ConfigError
 
-__all__ = ['load_yaml', 'read_text', 'read_yaml_file', 'yaml_error_text', 'yaml_text']
+__all__ = ['load_yaml', 'read_text', 'read_yaml_file', 'replace_file', 'yaml_error_text',
+           'yaml_text']
 
 
 # libyaml's parser where PyYAML was built with it (the wheels are): an experiment file in 2 ms
@@ -88,6 +91,19 @@ def read_yaml_file(path: Path, what: str = '') -> Any:
         return load_yaml(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f'{path}: not valid YAML: {yaml_error_text(exc)}') from exc
+
+
+def replace_file(path: Path, text: str, what: str = '') -> None:
+    """Write ``text`` to ``path`` at once (a temporary file renamed over it: never half
+    written); ``ConfigError`` naming it (and ``what`` it is) otherwise."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
+        with os.fdopen(fd, 'w') as stream:
+            stream.write(text)
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise ConfigError(f'{path}: cannot write{what}: {exc.strerror}') from exc
 
 
 def yaml_text(value: Any) -> str:

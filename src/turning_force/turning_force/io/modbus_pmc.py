@@ -16,7 +16,8 @@ One owner per module: with ``owner_register`` the bridge writes a token of its o
 it connects and reads it each period; a token that is not its own means a second bridge, and
 both refuse (the one that sees it first writes ``CONFLICT``, which the other then reads).
 Without one, the override coils are read before each write: a pattern this bridge did not
-write means another writer, and it refuses.
+write means another writer; it writes the 0 % pattern once, which the other then reads as a
+pattern it did not write, and both refuse.
 
 Every wait reads an injected clock (monotonic seconds by default), never the wall clock.
 
@@ -38,6 +39,7 @@ from pymodbus.exceptions import ModbusException
 from turning_force.core.errors import TurningForceError, short_repr
 from turning_force.core.pmc.machine import Machine, ModbusTcp
 from turning_force.core.pmc.shopfloor import InputValues
+from turning_force.core.tools import NO_TOOL
 
 __all__ = ['CONFLICT', 'CoilReader', 'InputValues', 'IoResult', 'ModbusPmc', 'PmcIoError',
            'pattern_text', 'quiet_pymodbus']
@@ -388,9 +390,10 @@ class ModbusPmc:
         link.write('claim owner', 6, link.client.write_register, register, self.token)
 
     def _check_owner(self) -> None:
-        """Another bridge on the module is a refusal: the owner token is not ours, or the
-        override coils hold a pattern this bridge did not write, read so twice (one corrupted
-        answer is a fault, not a second bridge)."""
+        """Another bridge on the module is a refusal for both: the owner token is not ours
+        (CONFLICT written for the other to see), or the override coils hold a pattern this
+        bridge did not write, read so twice (one corrupted answer is a fault, not a second
+        bridge; the 0 % pattern written for the other to see)."""
         register, link = self.config.owner_register, self._link
         if register is None:
             written = self._coils_written
@@ -403,10 +406,17 @@ class ModbusPmc:
 
             now = coils()
             if now != written and coils() == now:
+                # The other writer reads back what it wrote and would go on: the 0 % pattern
+                # (feed hold, the safest level) written once shows it the same conflict, so
+                # both refuse. Where it wrote 0 % itself, it holds the feed already.
+                hold = self.config.coils_for(self.machine.table.encode(0.0)[1])
+                if now != hold:
+                    link.write('mark conflict', 15, link.client.write_coils,
+                               self.config.first_coil, hold)
                 raise _Fault(f'override coils read {pattern_text(now)}, this bridge wrote '
-                             f'{pattern_text(written)}: another writer on the module; '
-                             'refusing (stop the other bridge, then restart this one)',
-                             refuse=True)
+                             f'{pattern_text(written)}: another writer on the module; both '
+                             'refuse, the coils left at 0 % (stop the other bridge, then '
+                             'restart this one)', refuse=True)
             return
         owner = self._owner()
         if owner == self.token or self._owner() == self.token:
@@ -462,7 +472,13 @@ class ModbusPmc:
             if not 0.0 <= dial_pct <= top:
                 raise _Fault(f'operator dial: register {count} reads {dial_pct:g} %, outside '
                              f'the {self.machine.table.name} range [0, {top:g}] %')
-        return InputValues(enable, threading, dial_pct)
+        tool = None
+        if inputs.tool is not None:
+            try:
+                tool = inputs.tool.decode([raw[a] for a in inputs.tool.addresses])
+            except ValueError:   # no number (a turret indexing): no tool's settings either
+                tool = NO_TOOL
+        return InputValues(enable, threading, dial_pct, tool_number=tool)
 
     def _failed(self, fault: _Fault | str) -> str:
         self._link.close()

@@ -3,7 +3,9 @@
 Subscribes ``force/estimate`` (turning_force_msgs/ForceEstimate), ``force/reference``
 (std_msgs/Float64 [N], transient-local, so a late joiner gets the last one) and
 ``machine/spindle_speed`` (std_msgs/Float64 [rpm]: the laws' spindle speed while it is fresh, else
-``spindle_speed_rpm``, :class:`turning_force.nodes.spindle.SpindleSpeedInput`); publishes
+``spindle_speed_rpm``, :class:`turning_force.nodes.spindle.SpindleSpeedInput`) and
+``machine/tool`` (std_msgs/Int32: the tool in use selects its section of ``tools_file`` from the
+next estimate on, :meth:`turning_force.core.control.base.Controller.select_tool`); publishes
 ``control/feed_command`` (turning_force_msgs/FeedCommand), stamped as the estimate it answers.
 It subscribes ``pmc/feed_override`` too: the override the bridge applied is the law's state
 wherever the request did not go through as asked (the tool out of the cut or entering it, the
@@ -26,7 +28,7 @@ from builtin_interfaces.msg import Time
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Int32
 from turning_force_msgs.msg import FeedCommand, FeedOverride, ForceEstimate
 
 from turning_force.core.control import ControllerSettings, make_controller
@@ -35,7 +37,7 @@ from turning_force.nodes.convert import estimate_from_msg, stamp_to_ns
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
 from turning_force.nodes.spin import run_nodes
-from turning_force.nodes.spindle import SpindleSpeedInput
+from turning_force.nodes.spindle import TOOL_TOPIC, SpindleSpeedInput
 
 __all__ = ['REFERENCE_QOS', 'ForceControllerNode', 'main']
 
@@ -69,6 +71,12 @@ class ForceControllerNode(Node):
         self._applied: collections.deque[FeedOverride] = collections.deque(maxlen=ANSWERS_KEPT)
         self._blocks: set[int] = set()   # the stamps of the blocks estimated (answers match)
         self.create_subscription(FeedOverride, 'pmc/feed_override', self._on_applied, 10)
+        self._tool: int | None = None   # machine/tool: taken with the next estimate
+        self.create_subscription(Int32, TOOL_TOPIC, self._on_tool, 10)
+
+    def _on_tool(self, msg: Int32) -> None:
+        self.diagnostics.received(TOOL_TOPIC)
+        self._tool = int(msg.data)
 
     def _retune(self, settings: ControllerSettings) -> None:
         self._controller.retune(settings)
@@ -102,6 +110,12 @@ class ForceControllerNode(Node):
     def _on_estimate(self, msg: ForceEstimate) -> None:
         self.diagnostics.received('force/estimate')
         self._take_applied(msg.header.stamp)
+        # The tool after the answers before this block, as the core loop's chain takes them.
+        if self._tool is not None and self._tool != self._controller.tool_number:
+            if not self._controller.select_tool(self._tool):
+                self.diagnostics.set_value('tool', f'{self._tool} (no section: settings kept)')
+            else:
+                self.diagnostics.set_value('tool', str(self._tool))
         self._controller.spindle_speed(self.spindle.rpm())
         out = command_for(self._controller, estimate_from_msg(msg))
         if out is None:
@@ -112,7 +126,7 @@ class ForceControllerNode(Node):
         command.tracking_error_n = float(out.error_n)
         command.sliding_variable = float(out.sliding_variable)
         command.reference_reachable = bool(out.reachable)
-        command.reference_force_n = float(self._controller.settings.reference_force_n)
+        command.reference_force_n = self._controller.reference_force_n
         command.controller = self._controller.name
         command.header = msg.header   # the estimate's, received anew each time
         self._publisher.publish(command)
@@ -124,8 +138,8 @@ class ForceControllerNode(Node):
                 settings = self._controller.settings
                 text = (f'the loop oscillates: the force error swings by '
                         f'{settings.oscillation_swing_n:g} N or more, again and again; '
-                        f'oscillation_reaction {settings.oscillation_reaction}: the feed held at '
-                        f'{out.override_pct:g} % until the tool leaves the cut')
+                        f'oscillation_reaction {settings.oscillation_reaction} from '
+                        f'{out.override_pct:g} %, until the run ends or the tool changes')
                 if settings.oscillation_reaction == 'none':
                     text = text.split(';')[0] + '; oscillation_reaction none: regulating on'
                 self.diagnostics.warn(text, log=True)

@@ -5,7 +5,8 @@ the override table, as the CNC would read them. Publishes, once per control peri
 ``machine/inputs`` (the simulated program enable, threading and dial, before the block's
 currents so that the bridge has them when it answers), ``machine/spindle_speed``
 (std_msgs/Float64 [rpm], the spindle encoder's speed at the block's end, unless
-``spindle_speed_wired`` is false: the input unplugged), ``servo/currents`` (a block of DAQ
+``spindle_speed_wired`` is false: the input unplugged), with ``tool_wired`` ``machine/tool``
+(std_msgs/Int32, the simulated program's tool number), ``servo/currents`` (a block of DAQ
 samples), ``servo/joint_state`` (feed axis ``z``: position [m], velocity [m/s], effort = true
 cutting force [N]) and ``sim/cutting_state`` (ground truth); with ``dynamometer`` also
 ``force/measured`` (geometry_msgs/WrenchStamped, ``wrench.force.z`` [N], for ``turning-force
@@ -28,12 +29,13 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Int32
 from turning_force_msgs.msg import CuttingState, FeedOverride, MachineInputs, ServoCurrents
 
 from turning_force.core import kernel
@@ -53,7 +55,7 @@ from turning_force.nodes.convert import (
 from turning_force.nodes.diagnostics import AnswerLatency, Diagnostics
 from turning_force.nodes.parameters import SettingsParameters, declare
 from turning_force.nodes.spin import run_nodes, timer_callback
-from turning_force.nodes.spindle import SPINDLE_SPEED_TOPIC
+from turning_force.nodes.spindle import SPINDLE_SPEED_TOPIC, TOOL_TOPIC
 
 __all__ = ['LatheSimNode', 'main']
 
@@ -108,6 +110,9 @@ class LatheSimNode(Node):
         self._speed_msg = Float64()
         self._speed = (self.create_publisher(Float64, SPINDLE_SPEED_TOPIC, 10)
                        if settings.spindle_speed_wired else None)
+        self._tool_msg = Int32()
+        self._tool = (self.create_publisher(Int32, TOOL_TOPIC, 10) if settings.tool_wired
+                      else None)
         self._currents = self.create_publisher(ServoCurrents, 'servo/currents', 10)
         self._joint = self.create_publisher(JointState, 'servo/joint_state', 10)
         self._truth = self.create_publisher(CuttingState, 'sim/cutting_state', 10)
@@ -208,6 +213,9 @@ class LatheSimNode(Node):
             self._speed_msg.data = float(block.spindle_speed_rpm)
             self._speed.publish(self._speed_msg)
             self.diagnostics.published(SPINDLE_SPEED_TOPIC)
+        if self._tool is not None and block.inputs.tool_number is not None:
+            self._tool_msg.data = int(block.inputs.tool_number)
+            self._tool.publish(self._tool_msg)
         joint = self._joint_msg
         set_stamp(joint.header.stamp, last_ns)
         joint.position = [self._plant.position_mm / 1000.0]
@@ -222,7 +230,8 @@ class LatheSimNode(Node):
         truth.spindle_speed_rpm = float(block.spindle_speed_rpm)
         truth.feed_mm_rev = float(block.feed_mm_rev[-1])
         truth.feed_rate_mm_min = float(currents.feed_rate_mm_min[-1])
-        truth.specific_cutting_force_n_mm2 = float(s.specific_cutting_force_n_mm2)
+        truth.specific_cutting_force_n_mm2 = float(s.material_at(np.array([
+            currents.t0_s + len(currents) * currents.sample_period_s]))[0])
         truth.override_pct = float(block.override_pct)
         self._truth.publish(truth)
         if self._dynamometer is not None and self._measured is not None:

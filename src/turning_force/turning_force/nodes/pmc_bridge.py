@@ -28,6 +28,7 @@ reads the steady clock (``/clock`` in sim time), never the wall clock.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from collections.abc import Sequence
@@ -40,7 +41,7 @@ from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
-from std_msgs.msg import Float64, Header
+from std_msgs.msg import Float64, Header, Int32
 from std_srvs.srv import Trigger
 from turning_force_msgs.msg import (
     CutRecord,
@@ -77,7 +78,7 @@ from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.parameters import SettingsParameters, declare
 from turning_force.nodes.spin import NodeTime, run_nodes, timer_callback
-from turning_force.nodes.spindle import SpindleSpeedInput
+from turning_force.nodes.spindle import TOOL_TOPIC, SpindleSpeedInput
 
 __all__ = ['BridgeStartError', 'PmcBridgeNode', 'SimulatedPmc', 'main']
 
@@ -123,6 +124,7 @@ class PmcBridgeNode(LifecycleNode):
         self._module_inputs = NO_INPUTS  # those of the module's inputs the machine file wires
         self._dial_read: float | None = None   # the dial as last read (raised when confirmed)
         self._topic_inputs = NO_INPUTS   # machine/inputs (the simulated machine's)
+        self._topic_tool: int | None = None   # machine/tool (the tool in use)
         self.cuts: list[CutRecord] = []  # the cuts published on pmc/cuts
         self._gate_outputs: dict[str, bool] = {}   # the outputs as the gate last set them
         self.io_fault = ''
@@ -149,6 +151,7 @@ class PmcBridgeNode(LifecycleNode):
         self._reference_publisher = self.create_publisher(Float64, 'force/reference',
                                                           REFERENCE_QOS)
         self.create_subscription(MachineInputs, 'machine/inputs', self._on_inputs, 10)
+        self.create_subscription(Int32, TOOL_TOPIC, self._on_tool, 10)
         self.create_subscription(FeedCommand, 'control/feed_command', self._on_command, 10)
         self.create_subscription(ForceEstimate, 'force/estimate', self._on_estimate, 10)
         self._feed_mm_min = math.nan   # the last block's mean axis feed, until its estimate
@@ -462,10 +465,23 @@ class PmcBridgeNode(LifecycleNode):
         self._topic_inputs = inputs_from_msg(msg)
         self._take_inputs()
 
+    def _on_tool(self, msg: Int32) -> None:
+        self.diagnostics.received(TOOL_TOPIC)
+        self._topic_tool = int(msg.data)
+        before = self.gate.tool_number
+        self._take_inputs()
+        if self.gate.tool_number != before:
+            self.diagnostics.set_value('tool', str(self.gate.tool_number))
+            if self.gate.tool_unknown:
+                self.diagnostics.error(f'{TOOL_TOPIC}: tool {msg.data} has no section in '
+                                       f'{self.gate.settings.tools_file}: feed handed back',
+                                       log=True)
+
     def _take_inputs(self) -> None:
         """The inputs in force: the module's where the machine file wires them, else the
-        topic's."""
-        self.gate.on_inputs(self._module_inputs.over(self._topic_inputs))
+        topics'."""
+        topic = dataclasses.replace(self._topic_inputs, tool_number=self._topic_tool)
+        self.gate.on_inputs(self._module_inputs.over(topic))
 
     def _on_currents(self, msg: ServoCurrents) -> None:
         self.diagnostics.received('servo/currents')
@@ -536,6 +552,8 @@ class PmcBridgeNode(LifecycleNode):
         msg.engaged = written.engaged
         msg.alarm = written.alarm
         msg.stop_request = written.stop_request
+        tool = written.inputs.tool_number
+        msg.tool_number = -1 if tool is None else int(tool)
         if answers is not None:
             msg.header = answers.header   # answers this block (lock-step matches on it)
         else:

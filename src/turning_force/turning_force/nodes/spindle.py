@@ -17,9 +17,13 @@ from std_msgs.msg import Float64
 
 from turning_force.nodes.diagnostics import Diagnostics
 
-__all__ = ['SPINDLE_SPEED_TOPIC', 'SpindleSpeedInput']
+__all__ = ['SPINDLE_SPEED_TOPIC', 'TOOL_TOPIC', 'SpindleSpeedInput']
 
 SPINDLE_SPEED_TOPIC = 'machine/spindle_speed'
+# The tool in use (std_msgs/Int32, the T code's tool number): it selects its section of the
+# tools file (core/tools.py) in force_controller and pmc_bridge; lathe_sim publishes the
+# simulated program's, before the block's currents, as it does the spindle speed.
+TOOL_TOPIC = 'machine/tool'
 
 
 class SpindleSpeedInput:

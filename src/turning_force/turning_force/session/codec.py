@@ -40,8 +40,8 @@ from rosbags.interfaces import Nodetype
 from rosbags.serde import SerdeError
 from rosbags.typesys.store import Typestore
 
-__all__ = ['DECODE_ERRORS', 'Field', 'Table', 'TableBuilder', 'decode', 'encode', 'fields',
-           'ranges', 'supports']
+__all__ = ['DECODE_ERRORS', 'Field', 'Table', 'TableBuilder', 'concat', 'decode', 'encode',
+           'fields', 'ranges', 'supports']
 
 # What rosbags' generated CDR deserialisers raise on damaged bytes.
 DECODE_ERRORS = (SerdeError, ValueError, IndexError, KeyError, TypeError, struct.error,
@@ -380,7 +380,7 @@ def decode(store: Typestore, msgtype: str, data: UInt8Array, offsets: IntArray,
     if not parts:
         return _empty_table(out_leaves, msgtype, 0), np.zeros(0, dtype=np.int64)
     index = np.concatenate([p[0] for p in parts])
-    table = _concat(out_leaves, msgtype, [p[1] for p in parts])
+    table = concat([p[1] for p in parts])
     if index.size > 1 and not np.all(index[1:] > index[:-1]):
         order = np.argsort(index, kind='stable')
         table, index = table.take(order), index[order]
@@ -488,23 +488,23 @@ def _from_object(leaves: Sequence[Field], msgtype: str, message: Any) -> Table:
     return table
 
 
-def _concat(leaves: Sequence[Field], msgtype: str, tables: Sequence[Table]) -> Table:
+def concat(tables: Sequence[Table]) -> Table:
+    """Tables of one type, one after the other: the columns they all have (strings to the
+    widest)."""
     if len(tables) == 1:
         return tables[0]
-    out = Table(msgtype, sum(t.count for t in tables))
-    for leaf in leaves:
-        out.columns[leaf.path] = _join([t.columns[leaf.path] for t in tables])
-        if leaf.path in tables[0].lengths:
-            out.lengths[leaf.path] = np.concatenate([t.lengths[leaf.path] for t in tables])
+    out = Table(tables[0].msgtype, sum(t.count for t in tables))
+    for path in tables[0].columns:
+        if not all(path in t.columns for t in tables):
+            continue
+        parts = [t.columns[path] for t in tables]
+        if parts[0].dtype.kind == 'S':
+            width = max(p.dtype.itemsize for p in parts)
+            parts = [p.astype(f'S{width}') for p in parts]
+        out.columns[path] = np.concatenate(parts)
+        if path in tables[0].lengths:
+            out.lengths[path] = np.concatenate([t.lengths[path] for t in tables])
     return out
-
-
-def _join(parts: Sequence[np.ndarray[Any, Any]]) -> np.ndarray[Any, Any]:
-    """Concatenated; strings to the widest, fixed arrays of one width."""
-    if parts[0].dtype.kind == 'S':
-        width = max(p.dtype.itemsize for p in parts)
-        return np.concatenate([p.astype(f'S{width}') for p in parts])
-    return np.concatenate(parts)
 
 
 class TableBuilder:

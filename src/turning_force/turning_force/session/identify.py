@@ -29,7 +29,9 @@ from turning_force.core.identify import (
     Recording,
     calibrate_map,
     identify,
+    program_depths_mm,
 )
+from turning_force.core.overlay import with_parameters_file
 from turning_force.core.plant.drive import clarke_park
 from turning_force.core.yamlfile import yaml_text
 from turning_force.session.bag import BagError, typestore
@@ -120,14 +122,27 @@ def recording_from_session(session: Session, axis: str = 'z') -> Recording:
         saturated=status == int(EstimateStatus.SATURATED),
         feed_rate_mm_min=c.feed_rate_mm_min,
         current_q_a=currents,
-        measured_force_n=_measured_per_block(session, axis))
+        measured_force_n=_measured_per_block(session, axis),
+        depth_mm=program_depths_mm(e.plant.depth_profile, c.t0_s, c.feed_rate_mm_min.shape[1],
+                                   c.sample_period_s))
 
 
 def identify_sessions(bags: Sequence[str | Path], settings: IdentifySettings | None = None,
+                      prior: Sequence[str | Path] | None = None,
                       ) -> tuple[Identification, list[Session]]:
-    """Identify the machine from the sessions in ``bags``."""
+    """Identify the machine from the sessions in ``bags``. With ``prior`` (parameters files,
+    e.g. the earlier commissioning's ``identify`` file; empty: the settings the first session
+    ran with), what a production session cannot identify is kept from them (the friction
+    curve, without an air move)."""
     sessions = [read_session(bag) for bag in bags]
-    return identify([recording_from_session(s) for s in sessions], settings), sessions
+    friction = None
+    if prior is not None and sessions[0].experiment is not None:
+        experiment = sessions[0].experiment
+        for file in prior:
+            experiment = with_parameters_file(experiment, file)
+        friction = experiment.estimator.friction
+    return identify([recording_from_session(s) for s in sessions], settings,
+                    friction), sessions
 
 
 def calibrate_map_sessions(bags: Sequence[str | Path], axis: str = 'z') -> MapCalibration:

@@ -107,6 +107,7 @@ SIGNALS: dict[str, tuple[str, str]] = {
     'engaged': ('pmc/feed_override', 'engaged'),
     'alarm': ('pmc/feed_override', 'alarm'),
     'stop_request': ('pmc/feed_override', 'stop_request'),
+    'tool_number': ('pmc/feed_override', 'tool_number'),
     'force_n': ('sim/cutting_state', 'force_n'),
     'depth_mm': ('sim/cutting_state', 'depth_of_cut_mm'),
     'feed_mm_rev': ('sim/cutting_state', 'feed_mm_rev'),
@@ -119,10 +120,6 @@ KEPT = {topic: (*STAMP, *(f for t, f in SIGNALS.values() if t == topic),
                 *(('armed',) if topic == 'pmc/feed_override' else ())) for topic in ANSWERS}
 SAFE_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)   # libyaml's where installed
 SHOWN = 3   # damaged stretches and gaps named in one line; the rest are counted
-
-
-def _ns(stamp: Any) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def _topic(name: str) -> str:
@@ -242,6 +239,8 @@ class Wholeness:
         elif self.state == DAMAGED:
             text = (f'damaged: {self.blocks}{of} blocks read'
                     + (f'; {_listed(list(self.lost))}' if self.lost else ''))
+        elif self.unverified:   # nothing can tell a changed byte in those chunks
+            text = f'whole as far as can be told (unverifiable): {self.blocks}{of} blocks'
         else:
             text = f'whole: {self.blocks}{of} blocks'
         if self.repaired:
@@ -545,10 +544,12 @@ class Session:
         session does not say, no answer or recorded before the bridge recorded them)."""
         s = self.signals
         enable, threading, dial = s['program_enable'], s['threading'], s['operator_dial_pct']
+        tool = s['tool_number']   # -1 not given; NaN: recorded before FeedOverride carried it
         given = ~(np.isnan(enable) | np.isnan(threading))
         return InputArrays(given, np.where(given & (enable >= 0), enable, -1).astype(np.int8),
                            np.where(given & (threading >= 0), threading, -1).astype(np.int8),
-                           np.where(given, dial, np.nan))
+                           np.where(given, dial, np.nan),
+                           tool_number=np.where(given & (tool != -1), tool, np.nan))
 
     def inputs(self, k: int) -> InputValues | None:
         """The machine's inputs the decision answering block ``k`` saw; None where the session
@@ -778,25 +779,7 @@ class _Decoder:
         for found in self._channels.values():
             if found is not None and found[3].count:
                 tables.setdefault(found[2], []).append(found[3].finish())
-        return {topic: _joined(parts) for topic, parts in tables.items()}
-
-
-def _joined(tables: list[Table]) -> Table:
-    """Tables of one topic from several channels: the columns they share, one after the
-    other."""
-    if len(tables) == 1:
-        return tables[0]
-    shared = [p for p in tables[0].columns if all(p in t.columns for t in tables)]
-    out = Table(tables[0].msgtype, sum(t.count for t in tables))
-    for path in shared:
-        parts = [t.columns[path] for t in tables]
-        if parts[0].dtype.kind == 'S':
-            width = max(p.dtype.itemsize for p in parts)
-            parts = [p.astype(f'S{width}') for p in parts]
-        out.columns[path] = np.concatenate(parts)
-        if path in tables[0].lengths:
-            out.lengths[path] = np.concatenate([t.lengths[path] for t in tables])
-    return out
+        return {topic: codec.concat(parts) for topic, parts in tables.items()}
 
 
 def _stamps(table: Table) -> IntArray:

@@ -154,37 +154,10 @@ def _decompress(chunk: Chunk) -> bytes:
     return data
 
 
-def _chunk_records(data: bytes) -> list[Schema | Channel | Message]:
-    """The schemas, channels and messages inside a chunk (other records are skipped)."""
-    out: list[Schema | Channel | Message] = []
-    pos = 0
-    while pos < len(data):
-        if pos + 9 > len(data):
-            raise McapError(f'a record header at {pos} runs past the end of the chunk')
-        opcode, length = data[pos], int.from_bytes(data[pos + 1:pos + 9], 'little')
-        end = pos + 9 + length
-        if end > len(data):
-            raise McapError(f'a record at {pos} runs past the end of the chunk')
-        body = data[pos + 9:end]
-        if opcode == Opcode.MESSAGE:   # the bulk of a session: parsed here, ten times faster
-            if length < MESSAGE_HEADER.size:
-                raise McapError(f'a message record at {pos} of {length} bytes')
-            channel, sequence, log_time, publish_time = MESSAGE_HEADER.unpack_from(body)
-            out.append(Message(channel_id=channel, sequence=sequence, log_time=log_time,
-                               publish_time=publish_time, data=body[MESSAGE_HEADER.size:]))
-        elif opcode == Opcode.CHANNEL:
-            out.append(Channel.read(_stream(body)))
-        elif opcode == Opcode.SCHEMA:
-            out.append(Schema.read(_stream(body)))
-        elif opcode not in {Opcode.METADATA, Opcode.ATTACHMENT}:
-            raise McapError(f'record with opcode {opcode:#04x} at {pos} inside a chunk')
-        pos = end
-    return out
-
-
 def _chunk_messages(data: bytes) -> tuple[list[Schema | Channel], IntArray, IntArray]:
     """The schemas and channels inside a chunk, and where its message records start and how
-    long they are (other records are skipped); raises as :func:`_chunk_records`."""
+    long they are (other records are skipped); raises ``McapError`` where a record runs past
+    the chunk or is not one a chunk may hold."""
     out: list[Schema | Channel] = []
     starts: list[int] = []
     lengths: list[int] = []
@@ -261,18 +234,17 @@ def _little(raw: npt.NDArray[np.uint8], at: IntArray, width: int) -> IntArray:
 
 
 class _Scanner:
-    def __init__(self, path: Path, data: bytes | mmap.mmap,
-                 sink: MessageSink | None = None) -> None:
+    def __init__(self, path: Path, data: bytes | mmap.mmap, sink: MessageSink | None) -> None:
         self.data = data
-        self.sink = sink
         self.out = McapScan(path, len(data))
+        self.sink = sink or self.keep
         self.known_chunks: set[int] = set()   # offsets of chunk records found or indexed
         # The summary's copies of schemas and channels: the data's own (in a chunk, under its
         # CRC) come first; these only stand in for what a lost chunk took with it.
         self.summary_records: list[tuple[Schema | Channel, int]] = []
         self.read_chunks: set[int] = set()
-        # Streaming: the next chunk decompressed on a thread while this one is decoded.
-        self._pool = ThreadPoolExecutor(1) if sink is not None else None
+        # The next chunk decompressed on a thread while this one is decoded.
+        self._pool = ThreadPoolExecutor(1)
         self._ahead: tuple[int, Future[bytes]] | None = None
         self._chunk_list: list[int] = []
         self._data_end = len(data)
@@ -281,14 +253,13 @@ class _Scanner:
         out = self.out
         if isinstance(record, Message):
             out.counts[record.channel_id] = out.counts.get(record.channel_id, 0) + 1
-            if self.sink is None:
+            if self.sink == self.keep:   # a message outside a chunk: its record as it is
                 out.messages.append(record)
-            else:
-                one = np.array([record.channel_id], dtype=np.int64)
-                self.sink(out, np.frombuffer(record.data, dtype=np.uint8), one,
-                          np.array([record.log_time], dtype=np.int64),
-                          np.zeros(1, dtype=np.int64),
-                          np.array([len(record.data)], dtype=np.int64))
+                return
+            self.sink(out, np.frombuffer(record.data, dtype=np.uint8),
+                      np.array([record.channel_id], dtype=np.int64),
+                      np.array([record.log_time], dtype=np.int64), np.zeros(1, dtype=np.int64),
+                      np.array([len(record.data)], dtype=np.int64))
             return
         table: dict[int, Schema] | dict[int, Channel] = (
             out.schemas if isinstance(record, Schema) else out.channels)
@@ -298,6 +269,18 @@ class _Scanner:
         elif known != record:
             out.damage.append(f'{where}: {type(record).__name__.lower()} {record.id} differs '
                               'from its copy elsewhere in the file')
+
+    def keep(self, out: McapScan, data: npt.NDArray[np.uint8], channels: IntArray,
+             log_times: IntArray, offsets: IntArray, sizes: IntArray) -> None:
+        """The sink of a scan without one: every message of a chunk kept, as mcap's record
+        (its header read from the record before its data)."""
+        raw = data.tobytes()
+        for offset, size in zip(offsets.tolist(), sizes.tolist(), strict=True):
+            channel, sequence, log_time, publish_time = MESSAGE_HEADER.unpack_from(
+                raw, offset - MESSAGE_HEADER.size)
+            out.messages.append(Message(channel_id=channel, sequence=sequence,
+                                        log_time=log_time, publish_time=publish_time,
+                                        data=raw[offset:offset + size]))
 
     def record_at(self, pos: int, limit: int) -> tuple[int, bytes] | None:
         """(opcode, body) of the record at ``pos`` if it lies whole before ``limit``."""
@@ -376,7 +359,7 @@ class _Scanner:
     def release(self, start: int, end: int) -> None:
         """Let the pages of a mapped file from ``start`` to ``end`` go (read once: a session
         of hours is not kept resident)."""
-        if self.sink is None or not isinstance(self.data, mmap.mmap):
+        if not isinstance(self.data, mmap.mmap):
             return
         first = -(-start // mmap.PAGESIZE) * mmap.PAGESIZE
         last = end // mmap.PAGESIZE * mmap.PAGESIZE
@@ -400,8 +383,6 @@ class _Scanner:
 
     def prefetch_after(self, pos: int) -> None:
         """Start decompressing the chunk after the one at ``pos``, if it is whole."""
-        if self._pool is None:
-            return
         later = bisect.bisect_right(self._chunk_list, pos)
         if later >= len(self._chunk_list):
             return
@@ -428,30 +409,15 @@ class _Scanner:
             pos += 9 + len(body)
         return np.concatenate(found) if found else None
 
-    def chunk(self, pos: int, body: bytes, index: IntArray | None = None) -> None:
-        self.read_chunks.add(pos)
-        self.out.chunks += 1
-        # start and end time, uncompressed size, then the CRC-32 of the records
-        self.out.unverified += body[24:28] == b'\0\0\0\0'
-        if self.sink is not None:
-            self.streamed_chunk(pos, body, index)
-            self.release(pos, pos + 9 + len(body))
-            return
-        try:
-            chunk = Chunk.read(_stream(body))
-            records = _chunk_records(_decompress(chunk))
-        except RECORD_ERRORS as exc:
-            self.out.damage.append(f'chunk at byte {pos} ({9 + len(body)} bytes): {exc}')
-            return
-        for record in records:
-            self.add(record, f'chunk at byte {pos}')
-
-    def streamed_chunk(self, pos: int, body: bytes, index: IntArray | None) -> None:
+    def chunk(self, pos: int, body: bytes, index: IntArray | None) -> None:
         """A chunk whose messages go to the sink as arrays (found from its message index where
         it has one, else by walking its records). The next chunk is decompressed on a thread
         meanwhile (what it gives, or what it raises, is taken when its turn comes: the scan's
         order of work is the same)."""
-        assert self.sink is not None
+        self.read_chunks.add(pos)
+        self.out.chunks += 1
+        # start and end time, uncompressed size, then the CRC-32 of the records
+        self.out.unverified += body[24:28] == b'\0\0\0\0'
         ahead, self._ahead = self._ahead, None
         self.prefetch_after(pos)
         try:
@@ -496,9 +462,8 @@ class _Scanner:
             if pos in self.known_chunks or opcode == Opcode.CHUNK:
                 if opcode != Opcode.CHUNK:
                     self.out.damage.append(f'byte {pos}: a chunk whose opcode was changed')
-                index = (self.message_index(pos + 9 + len(body), limit)
-                         if self.sink is not None else None)
-                self.chunk(pos, body, index)
+                self.chunk(pos, body, self.message_index(pos + 9 + len(body), limit))
+                self.release(pos, pos + 9 + len(body))
             elif opcode in (Opcode.MESSAGE, Opcode.SCHEMA, Opcode.CHANNEL):
                 try:
                     record: Schema | Channel | Message = (
@@ -573,5 +538,4 @@ def scan_mcap(path: Path, sink: MessageSink | None = None) -> McapScan:
             try:
                 return scanner.run()
             finally:
-                if scanner._pool is not None:
-                    scanner._pool.shutdown(wait=True, cancel_futures=True)
+                scanner._pool.shutdown(wait=True, cancel_futures=True)

@@ -70,8 +70,10 @@ def what_if(bag: str | Path, sets: Sequence[str],
     if session.experiment is None:
         raise TurningForceError(f'{bag}: no recorded settings: nothing to replay in closed loop')
     experiment = session.experiment
-    sources = list(identified_from) or [bag]
-    ident, sessions = identify_sessions(sources, IdentifySettings())
+    # From the session itself: closed loop, on the controller's own override steps, with the
+    # friction the session's estimator ran with (a production cut has no air move).
+    ident, sessions = identify_sessions(list(identified_from) or [bag], IdentifySettings(),
+                                        None if identified_from else ())
     depth = cut_depth_mm(sessions) or max(experiment.plant.depth_profile.depth_mm)
     plant = tuple(plant_sets(ident, depth, experiment.plant.current_per_force_a_n))
     try:

@@ -53,7 +53,9 @@ from turning_force.core.control.law import (
     set_spindle_speed,
 )
 from turning_force.core.control.registry import CONTROLLERS, names
+from turning_force.core.errors import ConfigError
 from turning_force.core.pmc.overrides import OverrideTable, get_table
+from turning_force.core.tools import load_tools_file, tool_settings
 
 if TYPE_CHECKING:
     from turning_force.core.control.settings import ControllerSettings
@@ -104,6 +106,31 @@ class Controller:
         update.controller_start(self._params, self._state)
         self._out = np.zeros(OUT_SIZE)
         self._rpm = math.nan
+        self._tools = load_tools_file(settings.tools_file) if settings.tools_file else {}
+        self.tool_table = self._tool_table()
+        self.tool_number = math.nan   # the tool whose settings are in use (NaN: the settings')
+
+    def _tool_table(self) -> FloatArray:
+        """Per tool of the tools file: its number, then the parameters of its settings
+        (:func:`.update.controller_tool`); no rows without a tools file."""
+        per_tool = tool_settings(self.settings, self._tools, self.settings.tools_file)
+        rows = [np.concatenate(([number], _params(s, self._table)[0]))
+                for number, s in per_tool.items()]
+        if any(row.size != self._params.size + 1 for row in rows):
+            raise ConfigError(f'{self.settings.tools_file}: a tool section changes the size of '
+                              f"the {self.name} law's parameters (its horizon or order): not "
+                              'a per-tool setting')
+        return np.array(rows, dtype=np.float64).reshape(len(rows), self._params.size + 1)
+
+    def select_tool(self, number: float) -> bool:
+        """The machine's tool input says tool ``number``: its settings from now on, the law
+        afresh as at an entry (:func:`.update.controller_tool`); False where the tools file has
+        no section for it (the gate hands the feed back then) or none is given."""
+        number = float(number)
+        if number == self.tool_number:
+            return True
+        self.tool_number = number
+        return update.control_tool(self.tool_table, self._params, self._state, number) >= 0
 
     @property
     def arrays(self) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -131,12 +158,23 @@ class Controller:
         self.settings = settings
         self._params = _params(settings, self._table)[0]
         set_spindle_speed(self._params, self._rpm)
+        self.tool_table = self._tool_table()
+        row = np.flatnonzero(self.tool_table[:, 0] == self.tool_number)
+        if row.size:   # the tool in use keeps its section over the new settings
+            self._params[:] = self.tool_table[row[0], 1:]
+            set_spindle_speed(self._params, self._rpm)
 
     def spindle_speed(self, rpm: float) -> None:
         """The live spindle speed [rpm] from the next update on (NaN: the ``spindle_speed_rpm``
         parameter again): :func:`~turning_force.core.control.law.spindle_speed`."""
         self._rpm = float(rpm)
         set_spindle_speed(self._params, self._rpm)
+
+    @property
+    def reference_force_n(self) -> float:
+        """The reference the laws regulate to now [N]: the settings', the tool's where a tools
+        file gives one (:meth:`select_tool`)."""
+        return float(self._params[C_REF])
 
     @property
     def spindle_speed_rpm(self) -> float:

@@ -75,12 +75,12 @@ C_LAW = C_DRIFT + drift.PARAMS
 # swing (1 rising, -1 falling, 0 not started), its extreme so far, the turning point before,
 # the last swing, the swings counted, the time since the last turn, the alarm (1 while it
 # holds), the alarms raised, the mean level sent, the level the reaction holds (the detune
-# reaction's integral); the counted swings' half-periods' sum, and the detune reaction's
-# crossover.
+# reaction's integral), the counted swings' half-periods' sum, the detune reaction's
+# crossover, and whether it waits for the force to settle (1) after the gate set the feed.
 CS_HELD, CS_CARRY, CS_PINNED, CS_RESETS, CS_SIDE, CS_ENGAGED = range(6)
 (CS_O_DIR, CS_O_EXT, CS_O_LAST, CS_O_SWING, CS_O_COUNT, CS_O_SINCE, CS_O_ALARM, CS_O_ALARMS,
- CS_O_MEAN, CS_O_HOLD, CS_O_HALVES, CS_O_CROSSOVER) = range(6, 18)
-CS_DRIFT = 18   # the drift monitor's state (.drift), drift.STATE values
+ CS_O_MEAN, CS_O_HOLD, CS_O_HALVES, CS_O_CROSSOVER, CS_O_WAIT) = range(6, 19)
+CS_DRIFT = 19   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
@@ -145,6 +145,7 @@ class ControllerBase(Settings):
     programmed_feed_mm_rev: float = shared.programmed_feed_mm_rev()
     override_table: str = override_table()
     max_feed_force_n: float = shared.max_feed_force_n()
+    tools_file: str = shared.tools_file()
     quantiser: str = setting('error_feedback', 'How a request becomes a PMC level: the '
                              "bridge's nearest level, or error feedback (noise shaping: the "
                              'levels sent average to the request)',
@@ -188,8 +189,8 @@ class ControllerBase(Settings):
         'than 0.7 of the one before and 0.08-2 s after it (a depth step gives two: its rise '
         'and its return; noise turns faster)', '-', low=2, high=100, dynamic=True)
     oscillation_reaction: str = setting(
-        'detune', 'What the oscillation alarm does until the tool leaves the cut: a slow '
-        "integral law whose crossover is a sixth of the oscillation's frequency (detune), "
+        'detune', 'What the oscillation alarm does until the run ends or the tool changes: '
+        "a slow integral law whose crossover is a sixth of the oscillation's frequency (detune), "
         'hold the mean override of the last second (hold_mean), ask for the programmed feed '
         '(programmed_feed), or nothing but the alarm (none)',
         choices=OSCILLATION_REACTIONS, dynamic=True)

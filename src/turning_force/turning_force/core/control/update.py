@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from turning_force.core.compiled import Arr, compiled, entry, pymax, pymin, quantise
+from turning_force.core.compiled import Arr, compiled, entry, pymax, pymin, quantise, table_row
 from turning_force.core.control import dispatch
 from turning_force.core.control.drift import DS_ALARM, DS_ALARM_SIZE, drift_applied, drift_step
 from turning_force.core.control.law import (
@@ -33,6 +33,7 @@ from turning_force.core.control.law import (
     C_OSC_SWING,
     C_PERIOD,
     C_REF,
+    C_RPM,
     C_UNREACH,
     CS_CARRY,
     CS_DRIFT,
@@ -51,6 +52,7 @@ from turning_force.core.control.law import (
     CS_O_MEAN,
     CS_O_SINCE,
     CS_O_SWING,
+    CS_O_WAIT,
     CS_PINNED,
     CS_RESETS,
     CS_SIDE,
@@ -62,10 +64,11 @@ from turning_force.core.control.law import (
     OUT_REACH,
     OUT_S,
     clip,
+    spindle_speed,
 )
 
-__all__ = ['control_applied', 'control_step', 'controller_applied', 'controller_start',
-           'controller_update']
+__all__ = ['control_applied', 'control_step', 'control_tool', 'controller_applied',
+           'controller_start', 'controller_tool', 'controller_update']
 
 # FeedOverride.REASON_NORMAL: the controller's request went through as asked.
 REASON_NORMAL = 0
@@ -82,7 +85,22 @@ OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.08, 2.0
 # keeps a phase margin of about 50 degrees on a loop of dead time, servo and tau_c whose phase
 # at w_u was -180 (Astrom & Hagglund, PID Controllers, 1995, Sec. 2.9 and 4.3). Where the
 # detector still finds a cycle under the reaction, w_c is halved, as often as it does.
+# (Relay auto-tuning's PI, Tyreus-Luyben's K_u / 3.2 and 2.2 T_u from the cycle read as a relay
+# experiment, was tried in its place: on the generated population it left the loops slower
+# after each depth step and fewer of them under the ripple bound.)
 DETUNE_RATIO = 6.0
+# The integral law starts from the level the force implies, the force being about proportional
+# to the feed: the level held scaled by ENTRY_SHARE F_ref / F, so that the force approaches from
+# below, after the gate has set the feed (the air, an entry, the dial), once the force has
+# settled there: at least ENTRY_FORCE_SHARE of the reference, changing by less than
+# ENTRY_RATE_PER_S of itself per second, and at most ENTRY_RAISE times the gate's level (a
+# force read at a turning point, not settled, must not send the feed far). The law waits on the
+# gate's level until then. Tried and left: starting so at the alarm itself (the cycle's mean
+# force, taken over an entry's transient, sent it further off than its mean level), and
+# jumping so mid-cut where the force had settled far from the reference after a depth step
+# (the force's rate is as small at a cycle's turning points as where it has settled: a jump
+# taken at a trough sent one machine's force to 2,100 N).
+ENTRY_SHARE, ENTRY_FORCE_SHARE, ENTRY_RATE_PER_S, ENTRY_RAISE = 0.9, 0.1, 0.5, 2.0
 # oscillation_reaction's index in law.OSCILLATION_REACTIONS
 DETUNE, HOLD_MEAN, PROGRAMMED_FEED, NO_REACTION = 0, 1, 2, 3
 
@@ -141,13 +159,22 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
 
 
 @compiled
+def _implied(cp: np.ndarray, level: float, force: float) -> float:
+    """The level that brings the force ``force`` at ``level`` to ENTRY_SHARE of the reference
+    (the force about proportional to the feed), at most ENTRY_RAISE times ``level``."""
+    return clip(cp, level * pymin(ENTRY_SHARE * cp[C_REF] / pymax(force, 1e-9), ENTRY_RAISE))
+
+
+@compiled
 def _alarm(cp: np.ndarray, cs: np.ndarray) -> None:
-    """The alarm is raised: the level the reaction starts from, and the detune reaction's
-    crossover from the limit cycle's period (twice the counted swings' mean half-period)."""
+    """The alarm is raised: the level the reaction starts from (the cycle's mean), and the
+    detune reaction's crossover from the limit cycle's period (twice the counted swings' mean
+    half-period)."""
     cs[CS_O_ALARM] = 1.0
     cs[CS_O_ALARMS] += 1.0
     reaction = int(cp[C_OSC_REACTION])
     cs[CS_O_HOLD] = clip(cp, 100.0 if reaction == PROGRAMMED_FEED else cs[CS_O_MEAN])
+    cs[CS_O_WAIT] = 0.0
     period = 2.0 * cs[CS_O_HALVES] / cs[CS_O_COUNT]
     cs[CS_O_CROSSOVER] = 2.0 * math.pi / (period * DETUNE_RATIO)
 
@@ -184,10 +211,17 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
 
 
 @compiled
-def _react(cp: np.ndarray, cs: np.ndarray, error: float) -> float:
+def _react(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> float:
     """The reaction's request while the alarm holds: the detune reaction's integral law on the
-    relative feed (DETUNE_RATIO), kept inside the table, or the held level."""
+    relative feed (DETUNE_RATIO), kept inside the table, or the held level. After the gate has
+    set the feed, the integral law waits on the gate's level until the force has settled there,
+    and starts from the level that force implies."""
     if int(cp[C_OSC_REACTION]) == DETUNE:
+        force = error + cp[C_REF]
+        if cs[CS_O_WAIT] != 0.0:
+            if force >= ENTRY_FORCE_SHARE * cp[C_REF] and abs(rate) <= ENTRY_RATE_PER_S * force:
+                cs[CS_O_HOLD], cs[CS_O_WAIT] = _implied(cp, cs[CS_O_HOLD], force), 0.0
+            return cs[CS_O_HOLD]
         step = cs[CS_O_CROSSOVER] * cp[C_PERIOD] * error / cp[C_REF]
         cs[CS_O_HOLD] = clip(cp, cs[CS_O_HOLD] * (1.0 - pymin(pymax(step, -0.5), 0.5)))
     return cs[CS_O_HOLD]
@@ -195,8 +229,11 @@ def _react(cp: np.ndarray, cs: np.ndarray, error: float) -> float:
 
 @compiled
 def _forget(cs: np.ndarray) -> None:
-    """Out of the cut: the detector starts afresh, the alarm and its reaction end."""
-    cs[CS_O_DIR], cs[CS_O_COUNT], cs[CS_O_ALARM] = 0.0, 0.0, 0.0
+    """Out of the cut: the detector starts afresh at the next entry. The alarm and its
+    reaction hold until the run ends or the tool changes (:func:`controller_tool`): a loop
+    that cycled cycles again at the next entry, and finding it again would cost another
+    ``oscillation_swings`` swings."""
+    cs[CS_O_DIR], cs[CS_O_COUNT] = 0.0, 0.0
     cs[CS_O_MEAN] = cs[CS_HELD]
 
 
@@ -222,7 +259,7 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
     if cs[CS_O_ALARM] != 0.0 and int(cp[C_OSC_REACTION]) != NO_REACTION:
         # the reaction sets the feed; the law is kept at rest on the level held
         law_reset(kind, cp, cs)
-        out[OUT_PCT], out[OUT_ERR], out[OUT_S] = _react(cp, cs, error), error, 0.0
+        out[OUT_PCT], out[OUT_ERR], out[OUT_S] = _react(cp, cs, error, rate), error, 0.0
     else:
         law_step(kind, cp, cs, force, rate, out)
     if not (math.isfinite(out[OUT_PCT]) and math.isfinite(out[OUT_S])
@@ -253,8 +290,8 @@ def controller_applied(cp: np.ndarray, cs: np.ndarray, applied: float, engaged: 
     or entry feed, the dial, the rise limit), the law starts afresh from the applied level each
     period: conditional integration, the anti-windup of Astrom & Hagglund (PID Controllers,
     1995, Sec. 3.5), so that no law winds up against a feed it does not set and each entry into
-    the cut starts from the feed the tool meets the work with. Out of the cut, the oscillation
-    detector starts afresh and its alarm ends."""
+    the cut starts from the feed the tool meets the work with (the oscillation reaction's
+    level too). Out of the cut, the oscillation detector starts afresh; its alarm holds."""
     cs[CS_ENGAGED] = 1.0 if engaged else 0.0
     drift_applied(cs[CS_DRIFT:CS_LAW], applied)
     if not engaged:
@@ -263,6 +300,9 @@ def controller_applied(cp: np.ndarray, cs: np.ndarray, applied: float, engaged: 
         cs[CS_HELD] = clip(cp, applied)
         cs[CS_CARRY] = 0.0
         law_reset(int(cp[C_KIND]), cp, cs)
+    if (reason != REASON_NORMAL or not engaged) and math.isfinite(applied) \
+            and int(cp[C_OSC_REACTION]) == DETUNE:   # the reaction's integral, likewise
+        cs[CS_O_HOLD], cs[CS_O_WAIT] = clip(cp, applied), 1.0
 
 
 @entry('void(float64[::1], float64[::1], float64, boolean, int64)')
@@ -281,3 +321,30 @@ def controller_start(cp: Arr, cs: Arr) -> None:
 def control_step(cp: Arr, cs: Arr, levels: Arr, force: float, rate: float, out: Arr) -> None:
     """:func:`controller_update` from Python (the nodes, replay)."""
     controller_update(cp, cs, levels, force, rate, out)
+
+
+@compiled
+def controller_tool(tools: np.ndarray, cp: np.ndarray, cs: np.ndarray, number: float) -> int:
+    """The machine's tool input says tool ``number``: its row of ``tools`` (the number, then
+    the parameters ``cp`` of its settings) becomes the parameters, the spindle speed in use
+    kept; returns the row, -1 where the table has none (the parameters stay). A tool changes in
+    air: the law starts afresh from the request held, as at an entry (the anti-windup of
+    :func:`controller_applied`), the quantiser's carry and the reachability clock cleared. The
+    oscillation alarm ends: another tool is another loop, watched afresh."""
+    row = table_row(tools, number)
+    if row < 0:
+        return row
+    rpm = cp[C_RPM]
+    for j in range(cp.size):
+        cp[j] = tools[row, j + 1]
+    spindle_speed(cp, rpm)
+    cs[CS_CARRY], cs[CS_PINNED], cs[CS_SIDE] = 0.0, 0.0, 0.0
+    cs[CS_O_ALARM], cs[CS_O_DIR], cs[CS_O_COUNT] = 0.0, 0.0, 0.0
+    law_reset(int(cp[C_KIND]), cp, cs)
+    return row
+
+
+@entry('int64(float64[:, ::1], float64[::1], float64[::1], float64)')
+def control_tool(tools: Arr, cp: Arr, cs: Arr, number: float) -> int:
+    """:func:`controller_tool` from Python (the controller node, the per-block chain)."""
+    return controller_tool(tools, cp, cs, number)

@@ -124,15 +124,22 @@ class InputArrays:
     threading: Int8Array
     operator_dial_pct: FloatArray
     spindle_speed_rpm: FloatArray | None = None   # None: never given
+    tool_number: FloatArray | None = None         # the tool in use; NaN or None: not given
 
     def __post_init__(self) -> None:
-        if self.spindle_speed_rpm is None:
-            object.__setattr__(self, 'spindle_speed_rpm', np.full(self.given.size, np.nan))
+        for name in ('spindle_speed_rpm', 'tool_number'):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full(self.given.size, np.nan))
 
     @property
     def _speeds(self) -> FloatArray:
         assert self.spindle_speed_rpm is not None   # __post_init__
         return self.spindle_speed_rpm
+
+    @property
+    def _tools(self) -> FloatArray:
+        assert self.tool_number is not None   # __post_init__
+        return self.tool_number
 
     def __len__(self) -> int:
         return int(self.given.size)
@@ -142,11 +149,12 @@ class InputArrays:
             return None
         enable, threading, dial = (int(self.program_enable[k]), int(self.threading[k]),
                                    float(self.operator_dial_pct[k]))
-        speed = float(self._speeds[k])
+        speed, tool = float(self._speeds[k]), float(self._tools[k])
         return InputValues(None if enable < 0 else bool(enable),
                            None if threading < 0 else bool(threading),
                            None if math.isnan(dial) else dial,
-                           None if math.isnan(speed) else speed)
+                           None if math.isnan(speed) else speed,
+                           None if math.isnan(tool) else int(tool))
 
     @classmethod
     def collect(cls, inputs: Callable[[int], InputValues | None], n: int) -> InputArrays:
@@ -163,16 +171,26 @@ class InputArrays:
                     out.operator_dial_pct[k] = values.operator_dial_pct
                 if values.spindle_speed_rpm is not None:
                     out._speeds[k] = values.spindle_speed_rpm
+                if values.tool_number is not None:
+                    out._tools[k] = values.tool_number
         return out
+
+    def _last_given(self) -> tuple[BoolArray, npt.NDArray[np.intp]]:
+        """Per block, whether inputs were given up to it, and the last block that gave them."""
+        index = np.where(self.given, np.arange(len(self)), -1)
+        np.maximum.accumulate(index, out=index)
+        known = index >= 0
+        return known, np.where(known, index, 0)
+
+    def seen_tool(self) -> FloatArray:
+        """The tool number each decision saw (NaN: none given up to its block)."""
+        known, at = self._last_given()
+        return np.where(known, self._tools[at], np.nan)
 
     def seen(self) -> tuple[Int8Array, Int8Array, FloatArray, FloatArray]:
         """What each decision saw: the last inputs given up to its block (none before the
         first), as (program_enable, threading, operator_dial_pct, spindle_speed_rpm)."""
-        n = len(self)
-        index = np.where(self.given, np.arange(n), -1)
-        np.maximum.accumulate(index, out=index)
-        known = index >= 0
-        at = np.where(known, index, 0)
+        known, at = self._last_given()
         enable = np.where(known, self.program_enable[at], -1).astype(np.int8)
         threading = np.where(known, self.threading[at], -1).astype(np.int8)
         dial = np.where(known, self.operator_dial_pct[at], np.nan)
@@ -331,15 +349,16 @@ def replay_chain(experiment: Experiment, currents: CurrentArrays | Sequence[Curr
 
 
 def _inputs_matrix(seen: InputArrays | None, n: int) -> FloatArray:
-    """The inputs each decision saw as the kernel takes them: (n, 4) program enable,
-    threading (1 set, 0 clear), the operator's dial, the spindle speed; NaN where not wired or
-    not given yet."""
-    out = np.full((n, 4), np.nan)
+    """The inputs each decision saw as the kernel takes them: (n, 5) program enable,
+    threading (1 set, 0 clear), the operator's dial, the spindle speed, the tool; NaN where not
+    wired or not given yet."""
+    out = np.full((n, 5), np.nan)
     if seen is not None:
         enable, threading, dial, speed = seen.seen()
         out[:, 0] = np.where(enable < 0, np.nan, enable)
         out[:, 1] = np.where(threading < 0, np.nan, threading)
         out[:, 2], out[:, 3] = dial, speed
+        out[:, 4] = seen.seen_tool()
     return out
 
 
@@ -366,9 +385,8 @@ def _replay_blocks(experiment: Experiment, blocks: Callable[[int], CurrentBlock]
                 chain.gate.arm(t_change)
             elif not armed and chain.gate.armed:
                 chain.gate.disarm()
-        reference_n = chain.controller.settings.reference_force_n
         step = chain.step(block, t_s, None if inputs is None else inputs(k))
-        trace._put(k, step, reference_n)
+        trace._put(k, step, chain.controller.reference_force_n)
         if progress is not None:
             progress(k + 1, n)
     return trace
@@ -379,7 +397,8 @@ def _replay_compiled(chain: ControlChain, currents: CurrentArrays,
                      progress: Callable[[int, int], None] | None = None) -> ChainTrace:
     """The compiled replay, from the (fresh) chain's state."""
     jit = kernel.load()
-    ep, es, cp, cs, clevels, gp, gs, glevels = chain.arrays(currents.sample_period_s)
+    ep, es, cp, cs, clevels, gp, gs, glevels, ctools, gtools = chain.arrays(
+        currents.sample_period_s)
     n = len(currents)
     # The kernel's rows a chunk at a time, into the trace as each is done: an hour's replay
     # holds the trace and one chunk of rows, not a second copy of the trace.
@@ -397,7 +416,8 @@ def _replay_compiled(chain: ControlChain, currents: CurrentArrays,
     for start in range(0, n, REPLAY_CHUNK_BLOCKS):
         end = min(start + REPLAY_CHUNK_BLOCKS, n)
         chunk = rows[:end - start]
-        change = jit.replay_blocks(ep, es, cp, cs, clevels, gp, gs, glevels, t0[start:end],
+        change = jit.replay_blocks(ep, es, cp, cs, clevels, gp, gs, glevels, ctools, gtools,
+                                   t0[start:end],
                                    float(currents.sample_period_s), u[start:end], v[start:end],
                                    angle[start:end], feed[start:end], times, armed, change,
                                    chunk, inputs[start:end], cuts, ncuts)
@@ -510,7 +530,7 @@ def run_core(experiment: Experiment) -> CoreRun:
         'feed_rate_mm_min': currents.feed_rate_mm_min[:, -1].copy() if n else np.empty(0),
         'override_pct': t['applied_override_pct'],
         'spindle_speed_rpm': t['spindle_speed_rpm'],
-        'specific_cutting_force_n_mm2': np.full(n, plant_settings.specific_cutting_force_n_mm2),
+        'specific_cutting_force_n_mm2': plant_settings.material_at(currents.t_end_s),
     }
     cuts = [cut_record(row, experiment.bridge.tool) for row in result.cut_rows]
     return CoreRun(result, currents, chain, plant, cuts)

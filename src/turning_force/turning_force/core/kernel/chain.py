@@ -104,6 +104,8 @@ class ControlChain:
             self.gate.on_inputs(inputs)
             speed = inputs.spindle_speed_rpm
             self._spindle_speed_rpm = math.nan if speed is None else speed
+            if inputs.tool_number is not None:   # its section, where the tools file has one
+                self.controller.select_tool(inputs.tool_number)
         estimate = self.estimator.update(block)
         self.gate.on_estimate(estimate.force_n, estimate.status)
         self.gate.on_feed(float(np.mean(block.feed_rate_mm_min)), self._spindle_speed_rpm)
@@ -122,14 +124,16 @@ class ControlChain:
 
     def arrays(self, sample_period_s: float) -> tuple[FloatArray, ...]:
         """(estimator parameters, state, controller parameters, state, levels, gate
-        parameters, state, levels) as the compiled loops take them, the estimator's filter set
-        for blocks sampled at ``sample_period_s`` (where that is a sample period). The
-        estimator's and the controller's arrays are their own (live); the gate's are copies
+        parameters, state, levels, the controller's and the gate's tool tables) as the
+        compiled loops take them, the estimator's filter set for blocks sampled at
+        ``sample_period_s`` (where that is a sample period). The estimator's and the
+        controller's arrays are their own (live); the gate's are copies
         (:meth:`OverrideGate.arrays`)."""
         ep, es = self.estimator.arrays_for(sample_period_s)
         cp, cs, clevels = self.controller.arrays
         gp, gs, glevels = self.gate.arrays()
-        return ep, es, cp, cs, clevels, gp, gs, glevels
+        return (ep, es, cp, cs, clevels, gp, gs, glevels, self.controller.tool_table,
+                self.gate.tool_table)
 
     def close(self) -> list[CutRecord]:
         """The end of the session: every cut, the one still open marked incomplete."""

@@ -33,7 +33,11 @@ from turning_force.core.control.law import (
     OUT_SIZE,
     spindle_speed,
 )
-from turning_force.core.control.update import controller_applied, controller_update
+from turning_force.core.control.update import (
+    controller_applied,
+    controller_tool,
+    controller_update,
+)
 from turning_force.core.estimation.estimator import (
     ES_DCODE,
     ES_DVAL,
@@ -62,6 +66,7 @@ from turning_force.core.pmc.gate import (
     GS_L_REFUSED,
     GS_LEARNED,
     GS_REQ,
+    GS_TOOL,
     LEARN_OK,
     gate_answer,
     gate_arm,
@@ -69,6 +74,7 @@ from turning_force.core.pmc.gate import (
     gate_inputs,
     gate_on_command,
     gate_on_estimate,
+    gate_tool,
 )
 
 # --- chain rows (core/batch.py ChainTrace): the estimate, the command (CH_ACTED 0: silent),
@@ -82,14 +88,17 @@ CHAIN_COLUMNS = 21
 @compiled
 def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
                clevels: np.ndarray, gp: np.ndarray, gs: np.ndarray, glevels: np.ndarray,
-               t0: float, dt: float, u: np.ndarray, v: np.ndarray, angle: np.ndarray,
-               feed: np.ndarray, work: np.ndarray, inputs: np.ndarray, out: np.ndarray,
-               dec: np.ndarray, cut: np.ndarray, cuts: np.ndarray, ncuts: np.ndarray) -> bool:
+               ctools: np.ndarray, gtools: np.ndarray, t0: float, dt: float, u: np.ndarray,
+               v: np.ndarray, angle: np.ndarray, feed: np.ndarray, work: np.ndarray,
+               inputs: np.ndarray, out: np.ndarray, dec: np.ndarray, cut: np.ndarray,
+               cuts: np.ndarray, ncuts: np.ndarray) -> bool:
     """One block through the chain (:class:`turning_force.core.kernel.chain.ControlChain` states
-    it): the machine's inputs (PE, threading, dial, spindle speed: ``inputs`` (4,), NaN where
-    not given) -> estimator -> gate.on_estimate, gate.on_feed (the axis feed against the
-    override) -> controller (at the spindle speed) -> gate.on_command -> gate.answer (DEC_*
-    into ``dec``) -> the controller told the override applied (its anti-windup,
+    it): the machine's inputs (PE, threading, dial, spindle speed, tool: ``inputs`` (5,), NaN
+    where not given; a new tool number selects its rows of the tool tables ``gtools``, the
+    gate's, and ``ctools``, the controller's, :mod:`turning_force.core.tools`) -> estimator ->
+    gate.on_estimate, gate.on_feed (the axis feed against the override) -> controller (at the
+    spindle speed) -> gate.on_command -> gate.answer (DEC_* into ``dec``) -> the controller
+    told the override applied (its anti-windup,
     :func:`~turning_force.core.control.update.controller_applied`: out of the cut, or where the
     gate held or shaped the request); a learning cut that has just been learned sets the
     controller's reference from the next block on; a cut that ended goes to ``cuts`` (row
@@ -97,6 +106,9 @@ def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
     acted (``out`` its command)."""
     t_end = t0 + u.size * dt
     gate_inputs(gs, inputs[0], inputs[1], inputs[2])
+    tool = inputs[4]
+    if tool == tool and tool != gs[GS_TOOL] and gate_tool(gtools, gp, gs, tool) >= 0:
+        controller_tool(ctools, cp, cs, tool)
     status = estimator_update(ep, es, t0, dt, u, v, angle, feed, work)
     force, rate = es[ES_F], es[ES_R]
     gate_on_estimate(gp, gs, force, status, cut)
@@ -157,12 +169,13 @@ def _chain_row(rows: np.ndarray, k: int, es: np.ndarray, acted: bool, out: np.nd
 @compiled
 def _closed_loop(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_v: Arr,
                  noise_f: Arr, noise_fr: Arr, ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr,
-                 gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int, applied: float, last: Arr,
+                 gp: Arr, gs: Arr, glevels: Arr, ctools: Arr, gtools: Arr, k0: int, k1: int,
+                 applied: float, last: Arr,
                  trace: Arr, inputs: Arr, cuts: Arr, ncuts: Arr, keep: bool, t0s: Arr, u: Arr,
                  v: Arr, angle: Arr, feed_rate: Arr, rows: Arr) -> float:
     """The closed loop, the one the core loop and the recorded core run share: blocks k0 ..
     k1 - 1, the plant then :func:`chain_step`, trace rows k0 .. k1 - 1; noise arrays start at
-    block k0, ``inputs`` (n, 4) at block 0 (where the plant's spindle speed input is wired, its
+    block k0, ``inputs`` (n, 5) at block 0 (where the plant's spindle speed input is wired, its
     column 3 is written from the plant's speed block by block). ``last`` is the command that
     stands (pct, sliding, reachable, oscillating, drift, drift's size). Where ``keep``, every
     block as well: its first stamp into t0s[k], its samples into row k of u, v, angle and
@@ -184,8 +197,8 @@ def _closed_loop(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_
                         lo, uk, vk, ak, fk, truth)
         if pp[P_SPEED_WIRED] != 0.0:   # the spindle encoder's speed at the block's end
             inputs[k, 3] = truth[3, n - 1]
-        acted = chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, t0, dt, uk, vk, ak, fk,
-                           work, inputs[k], out, dec, cut, cuts, ncuts)
+        acted = chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, ctools, gtools, t0, dt, uk,
+                           vk, ak, fk, work, inputs[k], out, dec, cut, cuts, ncuts)
         if acted:
             last[0], last[1], last[2], last[3] = (out[OUT_PCT], out[OUT_S], out[OUT_REACH],
                                                   out[OUT_OSC])
@@ -200,48 +213,55 @@ def _closed_loop(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_
 
 @entry('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
        'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, '
+       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
+       'float64[:, ::1], float64[:, ::1], int64, int64, '
        'float64, float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], '
        'float64[::1])')
 def run_core(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_v: Arr,
              noise_f: Arr, noise_fr: Arr, ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr,
-             gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int, applied: float, last: Arr,
-             trace: Arr, inputs: Arr, cuts: Arr, ncuts: Arr) -> float:
+             gp: Arr, gs: Arr, glevels: Arr, ctools: Arr, gtools: Arr, k0: int, k1: int,
+             applied: float, last: Arr, trace: Arr, inputs: Arr, cuts: Arr,
+             ncuts: Arr) -> float:
     """:func:`_closed_loop`, keeping the trace only (the core loop)."""
     nothing = np.empty((0, 0))
     return _closed_loop(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr, ep, es, cp,
-                        cs, clevels, gp, gs, glevels, k0, k1, applied, last, trace, inputs, cuts,
-                        ncuts, False, np.empty(0), nothing, nothing, nothing, nothing, nothing)
+                        cs, clevels, gp, gs, glevels, ctools, gtools, k0, k1, applied, last,
+                        trace, inputs, cuts, ncuts, False, np.empty(0), nothing, nothing,
+                        nothing, nothing, nothing)
 
 
 @entry('float64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
        'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64, '
+       'float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
+       'float64[:, ::1], float64[:, ::1], int64, int64, '
        'float64, float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], '
        'float64[::1], float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], '
        'float64[:, ::1], float64[:, ::1])')
 def run_core_kept(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_v: Arr,
                   noise_f: Arr, noise_fr: Arr, ep: Arr, es: Arr, cp: Arr, cs: Arr,
-                  clevels: Arr, gp: Arr, gs: Arr, glevels: Arr, k0: int, k1: int,
-                  applied: float, last: Arr, trace: Arr, inputs: Arr, cuts: Arr, ncuts: Arr,
-                  t0s: Arr, u: Arr, v: Arr, angle: Arr, feed_rate: Arr, rows: Arr) -> float:
+                  clevels: Arr, gp: Arr, gs: Arr, glevels: Arr, ctools: Arr, gtools: Arr,
+                  k0: int, k1: int, applied: float, last: Arr, trace: Arr, inputs: Arr,
+                  cuts: Arr, ncuts: Arr, t0s: Arr, u: Arr, v: Arr, angle: Arr, feed_rate: Arr,
+                  rows: Arr) -> float:
     """:func:`_closed_loop`, keeping every block (``run --core --out``)."""
     return _closed_loop(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr, ep, es, cp,
-                        cs, clevels, gp, gs, glevels, k0, k1, applied, last, trace, inputs, cuts,
-                        ncuts, True, t0s, u, v, angle, feed_rate, rows)
+                        cs, clevels, gp, gs, glevels, ctools, gtools, k0, k1, applied, last,
+                        trace, inputs, cuts, ncuts, True, t0s, u, v, angle, feed_rate, rows)
 
 
 @entry('int64(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], '
-       'float64[::1], float64[::1], float64[::1], float64[::1], float64, float64[:, ::1], '
+       'float64[::1], float64[::1], float64[::1], float64[:, ::1], float64[:, ::1], '
+       'float64[::1], float64, float64[:, ::1], '
        'float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], int64, '
        'float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[::1])')
 def replay_blocks(ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr, gp: Arr, gs: Arr,
-                  glevels: Arr, t0s: Arr, dt: float, u: Arr, v: Arr, angle: Arr, feed: Arr,
+                  glevels: Arr, ctools: Arr, gtools: Arr, t0s: Arr, dt: float, u: Arr, v: Arr,
+                  angle: Arr, feed: Arr,
                   arm_times: Arr, arm_states: Arr, change: int, rows: Arr, inputs: Arr,
                   cuts: Arr, ncuts: Arr) -> int:
     """Replay (session/replay.py): blocks of recorded currents (n, m) through
     :func:`chain_step`, open loop, each decision at the block's end, with the machine's
-    recorded inputs (n, 4); before each block, the gate armed (at the change's time) or
+    recorded inputs (n, 5); before each block, the gate armed (at the change's time) or
     disarmed for every change (arm_times, arm_states 1/0, in order, from index ``change`` on)
     up to the block's end. The chain's rows (CH_*) into rows; returns the index of the first
     change not made (where the next stretch of blocks goes on)."""
@@ -259,7 +279,8 @@ def replay_blocks(ep: Arr, es: Arr, cp: Arr, cs: Arr, clevels: Arr, gp: Arr, gs:
             elif arm_states[change] == 0.0 and gs[GS_ARMED] != 0.0:
                 gs[GS_ARMED] = 0.0
             change += 1
-        acted = chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, t0, dt, u[k], v[k],
-                           angle[k], feed[k], work, inputs[k], out, dec, cut, cuts, ncuts)
+        acted = chain_step(ep, es, cp, cs, clevels, gp, gs, glevels, ctools, gtools, t0, dt,
+                           u[k], v[k], angle[k], feed[k], work, inputs[k], out, dec, cut, cuts,
+                           ncuts)
         _chain_row(rows, k, es, acted, out, cp, gs, dec)
     return change

@@ -15,7 +15,7 @@ import numpy.typing as npt
 
 from turning_force.core.estimation.settings import EstimateStatus
 from turning_force.core.experiment import Experiment
-from turning_force.core.identify import Recording
+from turning_force.core.identify import Recording, program_depths_mm
 from turning_force.core.kernel.chain import ControlChain
 from turning_force.core.plant.drive import clarke_park
 from turning_force.core.plant.lathe import LathePlant
@@ -110,5 +110,7 @@ def record(experiment: Experiment, name: str | None = None) -> CoreRecording:
         current_map=experiment.estimator.current_map,
         block_start_s=start, override_pct=override, estimated_force_n=estimate,
         saturated=saturated, feed_rate_mm_min=feed, current_q_a=current,
-        measured_force_n=measured if dynamometer is not None else None)
+        measured_force_n=measured if dynamometer is not None else None,
+        depth_mm=program_depths_mm(plant_settings.depth_profile, start, feed.shape[1],
+                                   1.0 / plant_settings.sample_rate_hz))
     return CoreRecording(recording, plant_settings, force, depth, angle)

@@ -92,7 +92,7 @@ def run_loop(experiment: Experiment, kept: CoreArrays | None = None) -> Simulati
     # The chain in its order: the estimator, the controller, the PMC gate (and the level the
     # PMC starts at) ...
     chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge)
-    ep, es, cp, cs, clevels, gp, gs, glevels = chain.arrays(dt)
+    ep, es, cp, cs, clevels, gp, gs, glevels, ctools, gtools = chain.arrays(dt)
     applied = chain.gate.table.quantise(experiment.controller.initial_override_pct)
     # ... and the lathe it acts on: its arrays, the machine's inputs at each block's end, and
     # when the depth changes (for the metrics).
@@ -111,17 +111,20 @@ def run_loop(experiment: Experiment, kept: CoreArrays | None = None) -> Simulati
         noise_u, noise_v, noise_f, noise_fr = plant.draw_noise(end - start)
         if kept is None:
             applied = jit.run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr,
-                                   ep, es, cp, cs, clevels, gp, gs, glevels, start, end,
-                                   applied, last, rows, inputs, cuts, ncuts)
+                                   ep, es, cp, cs, clevels, gp, gs, glevels, ctools, gtools,
+                                   start, end, applied, last, rows, inputs, cuts, ncuts)
         else:
             applied = jit.run_core_kept(pp, ps, times, depths, noise_u, noise_v, noise_f,
                                         noise_fr, ep, es, cp, cs, clevels, gp, gs, glevels,
-                                        start, end, applied, last, rows, inputs, cuts, ncuts,
+                                        ctools, gtools, start, end, applied, last, rows,
+                                        inputs, cuts, ncuts,
                                         kept.t0_s, kept.phase_u_a, kept.phase_v_a,
                                         kept.rotor_angle_rad, kept.feed_rate_mm_min, kept.rows)
     trace = {name: rows[:, i].copy() for i, name in enumerate(TRACE_NAMES)}
-    # The metrics' reference is the experiment's, also where a learning cut sets another.
-    trace['reference_n'] = np.full(steps, experiment.controller.reference_force_n)
+    # The metrics' reference is the experiment's, also where a learning cut sets another; with
+    # a tools file, each tool's (the controller's, block by block).
+    if not experiment.controller.tools_file:
+        trace['reference_n'] = np.full(steps, experiment.controller.reference_force_n)
     try:
         metrics = compute_metrics(
             trace['t_s'], trace['force_n'], trace['reference_n'], trace['depth_mm'],

@@ -34,7 +34,10 @@ P_PB, P_PA, P_DELAY, P_LINEAR, P_FEED_NOISE = 26, 28, 30, 31, 32
 P_CSS, P_CSS_D0, P_RPM_MAX, P_FEED_REV = 33, 34, 35, 36
 P_CANCEL, P_HOLD, P_DRY, P_DRY_RATE = 37, 39, 41, 43
 P_SPEED_WIRED = 44   # the spindle speed input (machine/spindle_speed) wired
-P_SIZE = 45
+# the program's tool changes: how many, then (time [s], k, g) of each from P_TOOL_AT on (the
+# material each tool meets: its k and g from its time on); none: P_K and P_G throughout
+P_TOOLS, P_TOOL_AT = 45, 46
+P_SIZE = 46
 # truth rows: force, depth, feed [mm/rev], spindle speed [rpm]
 TRUTH_ROWS = 4
 # plant state
@@ -106,6 +109,19 @@ def depth_at(times: np.ndarray, depths: np.ndarray, linear: bool, t: float) -> f
 
 
 @compiled
+def _material(pp: np.ndarray, t: float) -> tuple[float, float]:
+    """The process gain k and exponent g the tool in use at ``t`` meets (the program's tool
+    changes, P_TOOLS; none: P_K and P_G)."""
+    k, g = pp[P_K], pp[P_G]
+    for j in range(int(pp[P_TOOLS])):
+        at = P_TOOL_AT + 3 * j
+        if pp[at] > t:
+            break
+        k, g = pp[at + 1], pp[at + 2]
+    return k, g
+
+
+@compiled
 def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.ndarray,
                override_pct: float, noise_u: np.ndarray, noise_v: np.ndarray,
                noise_f: np.ndarray, noise_fr: np.ndarray, lo: int, u: np.ndarray,
@@ -160,7 +176,7 @@ def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.nda
         position = position0 + cumulative * dt / 60.0
         depth = depth_at(times, depths, linear, t)
         feed = (fr if fr >= 0.0 or fr != fr else 0.0) / rpm
-        g = pp[P_G]
+        k_cut, g = _material(pp, t)
         if g == 1.0:
             powered = feed
         elif g == 0.5:
@@ -169,7 +185,7 @@ def plant_step(pp: np.ndarray, ps: np.ndarray, times: np.ndarray, depths: np.nda
             powered = feed * feed
         else:
             powered = feed ** g
-        static = pp[P_K] * depth * powered
+        static = k_cut * depth * powered
         if pp[P_PROCESS] != 0.0:
             force = pz + pb0 * static
             pz = pb1 * static - pa1 * force
@@ -310,7 +326,12 @@ def _plant_arrays(s: PlantSettings, samples_per_block: int,
         wn, xi = s.servo_natural_freq_rad_s, s.servo_damping
         sb, sa = lti.zoh([wn**2], [1.0, 2 * xi * wn, wn**2], dt)
     delay = round(s.pmc_dead_time_s / dt)
-    p = np.zeros(P_SIZE)
+    tools = len(s.tool_times_s) if s.tool_wired else 0
+    p = np.zeros(P_SIZE + 3 * tools)
+    p[P_TOOLS] = tools
+    for j in range(tools):
+        p[P_TOOL_AT + 3 * j:P_TOOL_AT + 3 * j + 3] = (
+            s.tool_times_s[j], s.tool_specific_cutting_force_n_mm2[j], s.tool_cutting_exponent[j])
     p[P_N], p[P_DT] = samples_per_block, dt
     p[P_FEED_RATE], p[P_RPM] = s.programmed_feed_rate_mm_min, s.spindle_speed_rpm
     p[P_K], p[P_G] = s.specific_cutting_force_n_mm2, s.cutting_exponent

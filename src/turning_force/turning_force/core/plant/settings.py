@@ -122,6 +122,21 @@ class PlantSettings(FeedDriveSettings):
     css_max_spindle_rpm: float = setting(1500.0, 'Constant surface speed: the largest spindle '
                                          'speed the program allows (G50 S)', 'rpm', low=0.0,
                                          low_open=True, high=20000.0)
+    tool_wired: bool = setting(False, "Simulate the machine's tool input (machine/tool: the T "
+                               'code in use) and a program that changes tools: tool_times_s, '
+                               'tool_numbers, and the material each tool cuts')
+    tool_times_s: tuple[float, ...] = setting(
+        [0.0], 'Times the simulated program changes tool (in air, between cuts)', 's', low=0.0,
+        high=3600.0)
+    tool_numbers: tuple[int, ...] = setting([1], 'The tool number (T code) from each of '
+                                            'tool_times_s on', '-', low=0, high=9999)
+    tool_specific_cutting_force_n_mm2: tuple[float, ...] = setting(
+        [2200.0], 'The specific cutting force each tool of tool_numbers meets (its insert and '
+        'material): specific_cutting_force_n_mm2 from each of tool_times_s on', 'N/mm^2',
+        low=0.0, low_open=True, high=20000.0, cite='Park 1998, Eq. 1')
+    tool_cutting_exponent: tuple[float, ...] = setting(
+        [1.0], 'The feed exponent g each tool of tool_numbers meets: cutting_exponent from each '
+        'of tool_times_s on', '-', low=0.1, high=1.5, cite='Hwang & Chen 1990, Eq. 3')
     spindle_speed_wired: bool = setting(True, 'The simulated machine gives its spindle speed '
                                         '(machine/spindle_speed, from the spindle encoder); '
                                         'false: the input unplugged')
@@ -159,6 +174,14 @@ class PlantSettings(FeedDriveSettings):
             if len(spans) % 2 or any(b < a for a, b in zip(spans[::2], spans[1::2],
                                                            strict=True)):
                 self.fail(name, 'expected [start, end) pairs, each end at or after its start')
+        for name in ('tool_numbers', 'tool_specific_cutting_force_n_mm2',
+                     'tool_cutting_exponent'):
+            if len(getattr(self, name)) != len(self.tool_times_s):
+                self.fail(name, f'needs one value per tool_times_s entry '
+                                f'({len(self.tool_times_s)})')
+        if self.tool_times_s[0] != 0.0 or any(
+                b <= a for a, b in zip(self.tool_times_s, self.tool_times_s[1:], strict=False)):
+            self.fail('tool_times_s', 'must start at 0 and be strictly increasing')
         if len(self.operator_dial_times_s) != len(self.operator_dial_pct):
             self.fail('operator_dial_pct', f'needs one value per operator_dial_times_s entry '
                                            f'({len(self.operator_dial_times_s)})')
@@ -193,11 +216,13 @@ class PlantSettings(FeedDriveSettings):
         return DepthProfile(self.depth_times_s, self.depth_mm, self.depth_interpolation)
 
     def inputs_array(self, t_s: FloatArray) -> FloatArray:
-        """:meth:`inputs_at` for many times at once: (n, 4) program enable, threading (1 set,
-        0 clear), the operator's dial [%] and the spindle speed [rpm] (left NaN: the closed loop
-        writes the plant's), NaN where not wired."""
+        """:meth:`inputs_at` for many times at once: (n, 5) program enable, threading (1 set,
+        0 clear), the operator's dial [%], the spindle speed [rpm] (left NaN: the closed loop
+        writes the plant's) and the tool number, NaN where not wired."""
         t = np.round(np.asarray(t_s, dtype=np.float64), 9)
-        out = np.full((t.size, 4), np.nan)
+        out = np.full((t.size, 5), np.nan)
+        if self.tool_wired:
+            out[:, 4] = np.asarray(self.tool_numbers, dtype=np.float64)[self._tool_index(t)]
         for column, spans in ((0, self.program_enable_spans_s), (1, self.threading_spans_s)):
             pairs = [(a, b) for a, b in zip(spans[::2], spans[1::2], strict=True) if b > a]
             if pairs:
@@ -220,8 +245,22 @@ class PlantSettings(FeedDriveSettings):
             index = max(k for k, at in enumerate(self.operator_dial_times_s)
                         if at <= t or k == 0)
             dial = self.operator_dial_pct[index]
+        tool = (self.tool_numbers[int(self._tool_index(np.array([t]))[0])] if self.tool_wired
+                else None)
         return InputValues(switch(self.program_enable_spans_s), switch(self.threading_spans_s),
-                           dial)
+                           dial, tool_number=tool)
+
+    def _tool_index(self, t_s: npt.ArrayLike) -> npt.NDArray[np.intp]:
+        """Which entry of tool_times_s holds at each of ``t_s``."""
+        index = np.searchsorted(np.asarray(self.tool_times_s), t_s, side='right') - 1
+        return np.maximum(index, 0)
+
+    def material_at(self, t_s: FloatArray) -> FloatArray:
+        """The specific cutting force [N/mm^2] the tool in use meets at each of ``t_s``."""
+        if not self.tool_wired:
+            return np.full(np.shape(t_s), self.specific_cutting_force_n_mm2)
+        table = np.asarray(self.tool_specific_cutting_force_n_mm2)
+        return table[self._tool_index(np.round(np.asarray(t_s, dtype=np.float64), 9))]
 
 
 @dataclass(frozen=True)

@@ -14,10 +14,26 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.compiled import Arr, activate, compiled, entry, pymax, pymin, quantise
+from turning_force.core.compiled import (
+    Arr,
+    activate,
+    compiled,
+    entry,
+    pymax,
+    pymin,
+    quantise,
+    table_row,
+)
 from turning_force.core.pmc.overrides import OverrideTable, get_table
 from turning_force.core.pmc.settings import BridgeSettings, Decision, Reason
 from turning_force.core.pmc.shopfloor import NO_INPUTS, CutRecord, InputValues, Learned, TaughtTool
+from turning_force.core.tools import (
+    NO_TOOL,
+    TOOL_BRIDGE_KEYS,
+    ToolSections,
+    load_tools_file,
+    tool_settings,
+)
 
 __all__ = ['OverrideGate', 'cut_record']
 
@@ -79,12 +95,16 @@ GS_REACT_LIM = 66     # the reaction's limit when it fired
 # time it has been outside it, whether it tripped, and what it saw then (the axis's override,
 # the envelope's edge, the spindle speed)
 GS_F_HI, GS_F_LO, GS_F_OFF_S, GS_F_TRIPPED, GS_F_ACTUAL, GS_F_EDGE, GS_F_RPM = range(67, 74)
-GS_FIXED = 74
+# the tool in use (the machine's tool input, NaN: not given) and whether it has no section in
+# the tools file (the feed handed back until a tool with one comes)
+GS_TOOL, GS_TOOL_BAD = 74, 75
+GS_FIXED = 76
 BLOCK_FIELDS = 6     # a block in a ring: end time, force, applied, reachable, event, breakage
 # a cut record (CUT_*): what a finished cut leaves in the gate's output row
 CUT_INDEX, CUT_START, CUT_END, CUT_FEED_S, CUT_MAXF, CUT_MEANF, CUT_MINO = range(7)
 CUT_EVENTS, CUT_BREAK, CUT_REACH, CUT_LEARNED, CUT_COMPLETE, CUT_READY = range(7, 13)
-CUT_FIELDS = 13
+CUT_TOOL = 13   # the tool that cut (NaN: no tool input)
+CUT_FIELDS = 14
 # a decision (DEC_*): applied, reason, the pct before quantisation, detail code and values,
 # whether the request went through (the rise limit's base), the outputs
 DEC_APPLIED, DEC_REASON, DEC_PCT, DEC_DCODE, DEC_DA, DEC_DB, DEC_DC, DEC_DIALLED = range(8)
@@ -93,7 +113,7 @@ DEC_FIELDS = 12
 # detail codes of a decision (the gate's one line, in pmc.py's words)
 (GD_NONE, GD_HOLD, GD_DISARMED, GD_WAITING, GD_NO_COMMAND, GD_STALE, GD_NONFINITE,
  GD_RANGE, GD_BREAKAGE, GD_REACTION_HOLD, GD_STAND, GD_TEACH, GD_FLOOR, GD_AIR, GD_DIAL,
- GD_RISE, GD_FOLLOW) = range(17)
+ GD_RISE, GD_FOLLOW, GD_TOOL) = range(18)
 
 
 
@@ -216,6 +236,7 @@ def _cut_record(gp: np.ndarray, gs: np.ndarray, learned: bool, complete: bool,
         cut[CUT_REACH] = gs[GS_C_REACH] / ncmd if ncmd > 0.0 else math.nan
         cut[CUT_LEARNED] = 1.0 if learned else 0.0
         cut[CUT_COMPLETE] = 1.0 if complete else 0.0
+        cut[CUT_TOOL] = gs[GS_TOOL]
         cut[CUT_READY] = 1.0
     _cut_clear(gs)
 
@@ -446,6 +467,35 @@ def gate_inputs(gs: np.ndarray, program_enable: float, threading: float,
     gs[GS_PE], gs[GS_TH], gs[GS_DIAL] = program_enable, threading, dial
 
 
+# The gate's per-tool parameters (tools file, ``pmc_bridge`` keys of a tool's section), in
+# the order of TOOL_BRIDGE_KEYS (core/tools.py) and of a tool table's columns after its number.
+TOOL_GATE = (G_AIR, G_FLOOR, G_OVERLOAD, G_ENGAGE, G_EXIT, G_RISE)
+
+
+@compiled
+def gate_tool(tools: np.ndarray, gp: np.ndarray, gs: np.ndarray, number: float) -> int:
+    """The machine's tool input says tool ``number``: its row of ``tools`` (number, then the
+    TOOL_GATE parameters) into the parameters, returned; -1 where the table has no row for it
+    (and a table is given: the feed is handed back until a tool with one comes, never another
+    tool's settings used) or no table is given (the settings serve every tool)."""
+    gs[GS_TOOL] = number
+    if tools.shape[0] == 0:
+        gs[GS_TOOL_BAD] = 0.0
+        return -1
+    row = table_row(tools, number)
+    gs[GS_TOOL_BAD] = 1.0 if row < 0 else 0.0
+    if row >= 0:
+        for j in range(len(TOOL_GATE)):
+            gp[TOOL_GATE[j]] = tools[row, j + 1]
+    return row
+
+
+@entry('int64(float64[:, ::1], float64[::1], float64[::1], float64)')
+def gate_tool_change(tools: Arr, gp: Arr, gs: Arr, number: float) -> int:
+    """:func:`gate_tool` from Python (:class:`OverrideGate`)."""
+    return gate_tool(tools, gp, gs, number)
+
+
 @compiled
 def _dialled(gp: np.ndarray, gs: np.ndarray, dec: np.ndarray, pct: float, reason: int,
              code: int) -> None:
@@ -472,6 +522,9 @@ def _judge(gp: np.ndarray, gs: np.ndarray, t: float, dec: np.ndarray) -> None:
         return
     if gs[GS_ARMED] == 0.0:
         _dialled(gp, gs, dec, gp[G_HAND_BACK], DISARMED, GD_DISARMED)
+        return
+    if gs[GS_TOOL_BAD] != 0.0:
+        _dialled(gp, gs, dec, gp[G_HAND_BACK], OPERATOR, GD_TOOL)
         return
     if gs[GS_CMD_T] < gs[GS_ARMED_T]:   # nothing since arming
         waited = t - gs[GS_ARMED_T]
@@ -541,7 +594,8 @@ def gate_decide(gp: np.ndarray, gs: np.ndarray, levels: np.ndarray, t: float,
     _judge(gp, gs, t, dec)
     dec[DEC_APPLIED] = quantise(levels, gp[G_CONT] != 0.0, dec[DEC_PCT])
     dec[DEC_ALARM] = 1.0 if (gs[GS_BREAK] != BREAK_NONE or gs[GS_REACTED] != 0.0
-                             or gs[GS_HOLD] != HOLD_NONE or gs[GS_F_TRIPPED] != 0.0) else 0.0
+                             or gs[GS_HOLD] != HOLD_NONE or gs[GS_F_TRIPPED] != 0.0
+                             or gs[GS_TOOL_BAD] != 0.0) else 0.0
     dec[DEC_STOP] = 1.0 if (gs[GS_REACTED] != 0.0
                             and gp[G_REACTION] == REACTION_STOP) else 0.0
     dec[DEC_ENGAGED] = gs[GS_ENGAGED]
@@ -640,6 +694,8 @@ class OverrideGate:
         self.inputs = NO_INPUTS
         self._cuts: list[CutRecord] = []
         self._learned: Learned | None = None
+        self._tools = load_tools_file(settings.tools_file) if settings.tools_file else {}
+        self.tool_table = _tool_table(settings, self._tools)
         if t_s is not None:
             self.start(t_s)
 
@@ -670,6 +726,10 @@ class OverrideGate:
         was_armed = self.settings.armed
         self.settings = settings   # first: re-arming judges the force by the new limit
         self._params = _gate_params(settings, self.table)
+        self.tool_table = _tool_table(settings, self._tools)
+        tool = float(self._state[GS_TOOL])
+        if math.isfinite(tool):   # the tool in use keeps its section over the new settings
+            gate_tool_change(self.tool_table, self._params, self._state, tool)
         if settings.armed and not was_armed:
             self.arm(t_s)
         elif not settings.armed:
@@ -698,6 +758,20 @@ class OverrideGate:
         self._state[[GS_PE, GS_TH, GS_DIAL]] = (_flag(inputs.program_enable),
                                                 _flag(inputs.threading),
                                                 math.nan if dial is None else float(dial))
+        if inputs.tool_number is not None and inputs.tool_number != self._state[GS_TOOL]:
+            gate_tool_change(self.tool_table, self._params, self._state,
+                             float(inputs.tool_number))
+
+    @property
+    def tool_unknown(self) -> bool:
+        """Whether the tool in use has no section in the tools file (the feed handed back)."""
+        return bool(self._state[GS_TOOL_BAD])
+
+    @property
+    def tool_number(self) -> int | None:
+        """The tool in use, as the machine's tool input last said (None: not given)."""
+        tool = float(self._state[GS_TOOL])
+        return int(tool) if math.isfinite(tool) else None
 
     def on_feed(self, feed_rate_mm_min: float, spindle_speed_rpm: float = math.nan) -> None:
         """The axis feed rate the DAQ measured over the last block (its mean) [mm/min], and
@@ -827,6 +901,11 @@ class OverrideGate:
                           f'({"times" if s.operator_dial == "product" else "below"} the '
                           f'request {requested:.4g} %)'),
             GD_RISE: f'rising at most {s.rise_rate_pct_s:g} %/s toward {requested:.4g} %',
+            GD_TOOL: ((f'tool {self.tool_number} has no section in the tools file '
+                       f'{s.tools_file}' if self.tool_number != NO_TOOL else
+                       'the tool input reads no tool number (a BCD digit above 9)')
+                      + ": not run on another tool's settings; feed handed back until a tool "
+                      'with a section comes'),
         }
         if code == GD_BREAKAGE:
             text = self._breakage_text() + again
@@ -882,9 +961,12 @@ _DIAL_MODES = {'min': 0, 'product': 1, 'ignore': 2}
 
 
 def cut_record(row: FloatArray, tool: str) -> CutRecord:
-    """A cut the compiled gate recorded (``CUT_*``) as a :class:`CutRecord`."""
+    """A cut the compiled gate recorded (``CUT_*``) as a :class:`CutRecord`; its tool the
+    number the machine's tool input gave while it cut (``T2``), else ``tool``."""
+    number = float(row[CUT_TOOL])
     return CutRecord(
-        index=int(row[CUT_INDEX]), tool=tool, start_s=float(row[CUT_START]),
+        index=int(row[CUT_INDEX]), tool=f'T{number:.0f}' if math.isfinite(number) else tool,
+        start_s=float(row[CUT_START]),
         end_s=float(row[CUT_END]), programmed_feed_s=float(row[CUT_FEED_S]),
         max_force_n=float(row[CUT_MAXF]), mean_force_n=float(row[CUT_MEANF]),
         min_override_pct=float(row[CUT_MINO]), overload_events=int(row[CUT_EVENTS]),
@@ -945,6 +1027,15 @@ def _gate_params(s: BridgeSettings, table: OverrideTable) -> FloatArray:
     return p
 
 
+def _tool_table(s: BridgeSettings, tools: ToolSections) -> FloatArray:
+    """Per tool of the tools file: its number, then its TOOL_GATE parameters (the bridge's
+    settings with its section's :data:`~turning_force.core.tools.TOOL_BRIDGE_KEYS`)."""
+    per_tool = tool_settings(s, tools, s.tools_file, TOOL_BRIDGE_KEYS)
+    rows = [[number, *_gate_params(settings, get_table(s.override_table))[list(TOOL_GATE)]]
+            for number, settings in per_tool.items()]
+    return np.array(rows, dtype=np.float64).reshape(len(rows), 1 + len(TOOL_GATE))
+
+
 def _gate_state(s: BridgeSettings, p: FloatArray) -> FloatArray:
     """The compiled gate's first state (``GS_*``, then its rings)."""
     state = np.zeros(int(p[G_WINDOW_AT] + p[G_WINDOW]))
@@ -952,7 +1043,7 @@ def _gate_state(s: BridgeSettings, p: FloatArray) -> FloatArray:
     state[GS_CMD_T] = state[GS_ARMED_T] = -math.inf
     state[GS_LAST_STATUS] = OK
     state[GS_REACH] = -1.0
-    state[GS_PE] = state[GS_TH] = state[GS_DIAL] = math.nan
+    state[GS_PE] = state[GS_TH] = state[GS_DIAL] = state[GS_TOOL] = math.nan
     state[GS_APPLIED] = state[GS_RAMP] = 100.0
     state[GS_F_HI] = state[GS_F_LO] = 100.0
     state[GS_LEARNING] = s.teach_in

@@ -2,7 +2,8 @@
 
 It names the override table the PMC reads, the ``backend`` (``simulated``, or a Modbus/TCP
 digital I/O module whose outputs drive the PMC's inputs) and the optional inputs (program
-enable, threading, operator dial) and outputs (alarm, stop request); the shipped files and
+enable, threading, operator dial, the tool in use: the T code's number, BCD or binary) and
+outputs (alarm, stop request); the shipped files and
 docs/machine-pc.md show every key. ``logic`` is the wiring between a module's point and the
 PMC (``direct``: an energised output, or a set input, means the signal is 1); the PMC's own
 sense of its signals (FANUC's active-low ``*FV``) belongs to the table. The override coils form
@@ -27,10 +28,11 @@ from turning_force.core.pmc.overrides import OverrideTable, get_table
 from turning_force.core.yamlfile import read_yaml_file
 
 __all__ = ['BACKENDS', 'DialInput', 'DigitalPoint', 'Machine', 'MachineInputs', 'MachineOutputs',
-           'ModbusTcp', 'load_machine', 'parse_machine']
+           'ModbusTcp', 'ToolInput', 'load_machine', 'parse_machine']
 
 BACKENDS = ('simulated', 'modbus_tcp')
 LOGIC = ('direct', 'inverted')
+TOOL_CODES = ('bcd', 'binary')
 _MAX_ADDRESS = 65535
 
 
@@ -77,13 +79,39 @@ class DialInput:
 
 
 @dataclass(frozen=True)
+class ToolInput:
+    """The tool in use, as the ladder puts the T code's number out on discrete inputs (FANUC's
+    T code signals, strobed by TF), bit 0 first: ``bcd`` (four bits a decimal digit, units
+    first) or ``binary``; ``logic`` the wiring's sense."""
+
+    addresses: tuple[int, ...]
+    code: str = 'bcd'
+    logic: str = 'direct'
+
+    def decode(self, raw: Sequence[bool]) -> int:
+        """The tool number the inputs as read give (``ValueError``: a BCD digit above 9)."""
+        point = DigitalPoint(0, self.logic)
+        bits = [point.signal(bool(b)) for b in raw]
+        if self.code == 'binary':
+            return sum(1 << k for k, bit in enumerate(bits) if bit)
+        number = 0
+        for place in range(len(bits) // 4):
+            digit = sum(1 << k for k, bit in enumerate(bits[4 * place:4 * place + 4]) if bit)
+            if digit > 9:
+                raise ValueError(f'BCD digit {place} reads {digit}: not a tool number')
+            number += digit * 10 ** place
+        return number
+
+
+@dataclass(frozen=True)
 class MachineInputs:
     """Inputs from the machine, each optional: program enable (an M-code relay), thread
-    cutting or tapping in progress, and the operator's override dial."""
+    cutting or tapping in progress, the operator's override dial, and the tool in use."""
 
     program_enable: DigitalPoint | None = None
     threading: DigitalPoint | None = None
     operator_dial: DialInput | None = None
+    tool: ToolInput | None = None
 
     @property
     def discrete_inputs(self) -> tuple[int, ...]:
@@ -94,6 +122,8 @@ class MachineInputs:
                 out.append(point.address)
         if self.operator_dial is not None and self.operator_dial.kind == 'bits':
             out.extend(self.operator_dial.addresses)
+        if self.tool is not None:
+            out.extend(self.tool.addresses)
         return tuple(out)
 
 
@@ -375,6 +405,20 @@ def _dial(reader: _Reader) -> DialInput | None:
                       'table), input_register or holding_register')
 
 
+def _tool(reader: _Reader) -> ToolInput | None:
+    if not reader.has('tool'):
+        return None
+    tool = reader.child('tool')
+    tool.only(('discrete_inputs', 'code', 'logic'))
+    addresses = tool.addresses('discrete_inputs')
+    code = tool.text('code', 'bcd', TOOL_CODES)
+    if len(addresses) > 16 or (code == 'bcd' and len(addresses) % 4):
+        raise tool.fail('discrete_inputs', f'{len(addresses)} bits: a {code} tool number takes '
+                        + ('four bits a digit, up to four digits' if code == 'bcd'
+                           else 'at most 16'))
+    return ToolInput(addresses, code, tool.text('logic', 'direct', LOGIC))
+
+
 def _modbus(backend: _Reader, table: OverrideTable) -> ModbusTcp:
     backend.only(('type', 'host', 'port', 'unit_id', 'override_coils', 'logic',
                   'readback_address', 'timeout_s', 'reconnect_min_s', 'reconnect_max_s',
@@ -431,9 +475,9 @@ def parse_machine(data: Any, source: str) -> Machine:
     else:
         backend.only(('type',))
     ins = top.child('inputs')
-    ins.only(('program_enable', 'threading', 'operator_dial'))
+    ins.only(('program_enable', 'threading', 'operator_dial', 'tool'))
     inputs = MachineInputs(_point(ins, 'program_enable', 'discrete_input'),
-                           _point(ins, 'threading', 'discrete_input'), _dial(ins))
+                           _point(ins, 'threading', 'discrete_input'), _dial(ins), _tool(ins))
     outs = top.child('outputs')
     outs.only(('alarm', 'stop_request'))
     outputs = MachineOutputs(_point(outs, 'alarm', 'coil'), _point(outs, 'stop_request', 'coil'))

@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from turning_force.core.errors import ConfigError
 from turning_force.core.settings import setting
@@ -111,19 +110,6 @@ class OverrideTable:
             return min(max(pct, self.min_pct), self.max_pct)
         index = bisect.bisect_right(self.levels_pct, pct)
         return self.levels_pct[max(index - 1, 0)]
-
-    def quantise_array(self, requested_pct: npt.ArrayLike) -> npt.NDArray[np.float64]:
-        """Vectorised :meth:`quantise` (for replays); NaN stays NaN."""
-        req = np.asarray(requested_pct, dtype=np.float64)
-        levels = np.asarray(self.levels_pct, dtype=np.float64)
-        clipped: npt.NDArray[np.float64] = np.clip(req, levels[0], levels[-1])
-        if self.continuous:
-            return clipped
-        upper = np.clip(np.searchsorted(levels, clipped, side='left'), 1, levels.size - 1)
-        lo, hi = levels[upper - 1], levels[upper]
-        nearest = np.where(hi - clipped < clipped - lo, hi, lo)
-        out: npt.NDArray[np.float64] = np.where(np.isnan(req), np.nan, nearest)
-        return out
 
     def encode(self, applied_pct: float) -> tuple[int, tuple[bool, ...]]:
         """The PMC code and the signal states (bit 0 first) that set ``applied_pct``."""

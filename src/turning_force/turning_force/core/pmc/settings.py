@@ -78,6 +78,7 @@ class BridgeSettings(ShopFloorSettings):
     spindle_speed_rpm: float = shared.spindle_speed_rpm()
     spindle_speed_stale_s: float = shared.spindle_speed_stale_s()
     programmed_feed_mm_rev: float = shared.programmed_feed_mm_rev()
+    tools_file: str = shared.tools_file()
     feed_follow_time_s: float = setting(
         0.3, 'The axis feed the DAQ measures outside what the applied override allows this long '
         'while cutting (override cancel M49, feed hold, dry run, a ladder that does not copy the '

@@ -16,8 +16,6 @@ alike; this module holds their settings, the teach-in file and the records they 
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +25,7 @@ import yaml
 
 from turning_force.core.errors import ConfigError
 from turning_force.core.settings import Settings, setting
+from turning_force.core.yamlfile import replace_file
 
 __all__ = ['NO_INPUTS', 'CutRecord', 'InputValues', 'Learned', 'ShopFloorSettings', 'TaughtTool',
            'load_teach_file', 'save_teach_file', 'taught_reference']
@@ -42,13 +41,16 @@ class InputValues:
     ``program_enable``: the part program's enable (an M-code relay); ``threading``: thread
     cutting or tapping in progress; ``operator_dial_pct``: the operator's override dial [%];
     ``spindle_speed_rpm``: the live spindle speed (``machine/spindle_speed``) [rpm], which the
-    controller and the feed-follow check use.
+    controller and the feed-follow check use; ``tool_number``: the tool in use (the T code,
+    ``machine/tool``), which selects its section of the tools file
+    (:mod:`turning_force.core.tools`).
     """
 
     program_enable: bool | None = None
     threading: bool | None = None
     operator_dial_pct: float | None = None
     spindle_speed_rpm: float | None = None
+    tool_number: int | None = None
 
     def over(self, fallback: InputValues) -> InputValues:
         """These values where given, ``fallback``'s elsewhere (a module's wired inputs over a
@@ -59,7 +61,8 @@ class InputValues:
             (fallback.operator_dial_pct if self.operator_dial_pct is None
              else self.operator_dial_pct),
             (fallback.spindle_speed_rpm if self.spindle_speed_rpm is None
-             else self.spindle_speed_rpm))
+             else self.spindle_speed_rpm),
+            fallback.tool_number if self.tool_number is None else self.tool_number)
 
 
 NO_INPUTS = InputValues()   # a machine that wires none
@@ -249,14 +252,7 @@ def save_teach_file(path: str | Path, tool: str, taught: TaughtTool) -> None:
             + yaml.safe_dump({'tools': {name: entry.to_dict()
                                         for name, entry in sorted(tools.items())}},
                              sort_keys=False))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
-        with os.fdopen(fd, 'w') as stream:
-            stream.write(text)
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise ConfigError(f'{path}: cannot write teach-in file: {exc.strerror}') from exc
+    replace_file(path, text, ' teach-in file')
 
 
 def taught_reference(settings: ShopFloorSettings) -> float | None:
