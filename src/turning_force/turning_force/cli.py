@@ -700,7 +700,7 @@ def _write_tool_section(args: argparse.Namespace,
     path = Path(args.out)
     section = load_tools_file(path).get(args.tool, {}) if path.exists() else {}
     section['force_controller'] = {
-        name: value if isinstance(value, str) else float(f'{float(value):.6g}')
+        name: value if isinstance(value, (str, bool)) else float(f'{float(value):.6g}')
         for name, value in sections['force_controller'].items()}
     save_tool_section(path, args.tool, section)
     if not args.json:
