@@ -102,16 +102,16 @@ def stepped(e: Experiment) -> CoreRun:
         reference_now = chain.controller.reference_force_n   # the tool's, with a tools file
         trace._put(k, step, reference_now)
         command = step.command or command
-        pct, sliding, reach, oscillating = ((applied, 0.0, 1.0, 0.0) if command is None else
-                                            (command.override_pct, command.sliding_variable,
-                                             float(command.reachable),
-                                             float(command.oscillating)))
+        pct, sliding, reach, oscillating, drift, drift_size = (
+            (applied, 0.0, 1.0, 0.0, 0.0, 0.0) if command is None else
+            (command.override_pct, command.sliding_variable, float(command.reachable),
+             float(command.oscillating), float(command.drift), command.drift_size))
         rows[k] = (b.t0_s + len(b) * b.sample_period_s, block.force_n[-1],
                    step.estimate.force_n, step.estimate.force_rate_n_s,
                    reference_now if e.controller.tools_file else e.controller.reference_force_n,
                    block.depth_mm[-1], block.feed_mm_rev[-1],
                    pct, applied, sliding, reach, oscillating, block.spindle_speed_rpm,
-                   int(step.decision.reason))
+                   int(step.decision.reason), drift, drift_size)
         plant_rows['spindle_speed_rpm'][k] = block.spindle_speed_rpm
         plant_rows['force_n'][k], plant_rows['depth_mm'][k] = (block.force_n[-1],
                                                                 block.depth_mm[-1])

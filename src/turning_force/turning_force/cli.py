@@ -175,7 +175,7 @@ def _run(args: argparse.Namespace) -> int:
             progress = print_progress
         recorded = _recorded(bag, lambda step: record_core(experiment, bag, step), progress)
         result = recorded.run.result
-        metrics = result.metrics
+        metrics, drifted = result.metrics, result.drift
         stopped = handed_back(result.trace['t_s'], result.trace['override_reason'])
         out: dict[str, Any] = {'experiment': experiment.run.name, 'session': str(bag),
                                'metrics': metrics}
@@ -184,7 +184,7 @@ def _run(args: argparse.Namespace) -> int:
 
         with _signals(defer=False):
             result = simulate(experiment)
-        metrics = result.metrics
+        metrics, drifted = result.metrics, result.drift
         stopped = handed_back(result.trace['t_s'], result.trace['override_reason'])
         out = {'experiment': experiment.run.name, 'metrics': metrics}
     else:
@@ -203,6 +203,7 @@ def _run(args: argparse.Namespace) -> int:
         with _signals(defer=False):   # the session is closed: a signal stops the figure
             session = read_session(bag)
             stopped = handed_back(session.t_s, session.signals['override_reason'])
+            drifted = ''   # force_controller's WARN on /diagnostics, in the session
             try:
                 metrics = recorded_metrics(session)
             except NoCutError:
@@ -213,12 +214,16 @@ def _run(args: argparse.Namespace) -> int:
                'executor': outcome.executor, 'metrics': metrics}
     if stopped:
         out['handed_back'] = stopped
+    if drifted:
+        out['drift'] = drifted
     if args.json:
         print(json.dumps(out))
         return 0
     print(f'{experiment.run.name}: {experiment.run.description}')
     if stopped:
         print(f'  {stopped}')
+    if drifted:   # the graph's force_controller says it on /diagnostics
+        print(f'  WARNING: the machine drifted from its identified model: {drifted}')
     if experiment.run.paper_figure:
         paper = experiment.run.paper_steady_mean_abs_error_n
         print(f'  reproduces {experiment.run.paper_figure}'
@@ -611,6 +616,7 @@ def _parse_range(text: str | None, option: str) -> tuple[float, float] | None:
 
 
 def _identify(args: argparse.Namespace) -> int:
+    from turning_force.core.control import drift
     from turning_force.core.experiment import assignments, parse_set
     from turning_force.core.identify import IdentifySettings
     from turning_force.core.verification import verify
@@ -636,6 +642,8 @@ def _identify(args: argparse.Namespace) -> int:
     for assignment in chosen.sets[len(identified):]:   # the chosen law's own settings
         node, key, value = parse_set(assignment)
         found[node][key] = value
+    # the drift monitor watches the identified model while cutting
+    found['force_controller'].update(drift.identified(ident, job, depths, cut_depth))
     sections: Mapping[str, Mapping[str, Any]] = (
         found if chosen.name != 'defaults' else {'force_controller': {}})
     if args.json:
@@ -692,7 +700,7 @@ def _write_tool_section(args: argparse.Namespace,
     path = Path(args.out)
     section = load_tools_file(path).get(args.tool, {}) if path.exists() else {}
     section['force_controller'] = {
-        name: value if isinstance(value, str) else float(f'{float(value):.6g}')
+        name: value if isinstance(value, (str, bool)) else float(f'{float(value):.6g}')
         for name, value in sections['force_controller'].items()}
     save_tool_section(path, args.tool, section)
     if not args.json:

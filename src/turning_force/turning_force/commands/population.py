@@ -26,16 +26,17 @@ from typing import Any
 
 import numpy as np
 
+from turning_force.core.control import drift
 from turning_force.core.control.law import ControllerBase
 from turning_force.core.experiment import Experiment, assignments, load_experiment
-from turning_force.core.identify import IdentifySettings
+from turning_force.core.identify import Identification, IdentifySettings
 from turning_force.core.kernel.simulate import simulate
 from turning_force.core.plant.drive import FeedDriveSettings
 from turning_force.core.pmc.shopfloor import ShopFloorSettings
 from turning_force.core.verification import Prediction, verify
 
 __all__ = ['JOBS', 'PARK_DRIFTS', 'Commissioned', 'Machine', 'commission', 'draw',
-           'park_drifts', 'run_job']
+           'identified_sets', 'identify_machine', 'park_drifts', 'run_job']
 
 EXPERIMENTS = Path('config/experiments')   # the repository's, from its root
 PARK_KS_N_MM2 = 2200.0   # Park's steel at g = 1 (park1998_fig8.yaml)
@@ -182,35 +183,57 @@ class Commissioned:
     identified: tuple[str, ...]
     chosen: Prediction
     predictions: tuple[Prediction, ...]
+    monitor: tuple[str, ...] = ()   # the drift monitor's settings (control.drift.identified)
 
 
-def commission(machine: Machine, experiments: Path = EXPERIMENTS, plants: int = 50,
-               production: Sequence[str] | None = None) -> Commissioned:
-    """The user's flow on ``machine`` before it drifts: the commissioning experiment recorded,
-    ``identify`` with the job's depth range, verified in closed loop on the job. With
-    ``production`` (the settings it was cut with), re-commissioning from yesterday's parts
-    instead: the job cut with them on the machine as it is now (drifted), ``identify`` on that
-    production session (what it cannot identify kept from those settings, as ``--prior``)."""
+def identify_machine(machine: Machine, experiments: Path = EXPERIMENTS,
+                     production: Sequence[str] | None = None) -> tuple[Identification, float]:
+    """The commissioning experiment recorded on ``machine`` before it drifts, and ``identify``
+    on it: the identification and the commissioning cut's depth [mm]. With ``production`` (the
+    settings it was cut with), re-commissioning from yesterday's parts instead: the job cut
+    with them on the machine as it is now (drifted), ``identify`` on that production session
+    (what it cannot identify kept from those settings, as ``--prior``)."""
     from turning_force.commands.core_session import record_core
     from turning_force.session.identify import cut_depth_mm, identify_sessions
 
     experiment = (load_experiment(experiments / 'commissioning.yaml').with_sets(
         machine.sets(after_drift=False)) if production is None else
         job_experiment(machine, experiments=experiments).with_sets(list(production)))
-    cut = [d for d in JOBS[machine.job][1] if d > 0]
     with tempfile.TemporaryDirectory() as folder:
         session = Path(folder) / 'session'
         record_core(experiment, session)
         ident, sessions = identify_sessions([session], IdentifySettings(),
                                             None if production is None else ())
-        cut_depth = cut_depth_mm(sessions) or 1.0
+    return ident, cut_depth_mm(sessions) or 1.0
+
+
+def identified_sets(machine: Machine, ident: Identification, cut_depth: float,
+                    depths_mm: tuple[float, float] | None = None,
+                    experiments: Path = EXPERIMENTS) -> tuple[list[str], list[str]]:
+    """What ``identify`` writes for the machine's job (for jobs ``depths_mm`` deep, where that
+    is given): the identified model (``--set`` assignments for force_controller and
+    force_estimator), and the drift monitor's settings."""
+    cut = [d for d in JOBS[machine.job][1] if d > 0]
+    depths = depths_mm or (min(cut), max(cut))
+    job = job_experiment(machine, after_drift=False, experiments=experiments)
+    found = ident.parameters(depths, cut_depth, job.controller.reference_force_n)
+    identified = [a for node, params in found.items() for a in assignments(node, params)]
+    monitor = drift.identified(ident, job, depths, cut_depth)
+    return identified, assignments('force_controller', monitor)
+
+
+def commission(machine: Machine, experiments: Path = EXPERIMENTS, plants: int = 50,
+               production: Sequence[str] | None = None) -> Commissioned:
+    """The user's flow on ``machine`` before it drifts: the commissioning experiment recorded,
+    ``identify`` with the job's depth range, verified in closed loop on the job. With
+    ``production``, re-commissioning from yesterday's parts (:func:`identify_machine`)."""
+    ident, cut_depth = identify_machine(machine, experiments, production)
+    identified, monitor = identified_sets(machine, ident, cut_depth, experiments=experiments)
     # The user verifies on the job's file: the machine as commissioned, not its drift.
     job = job_experiment(machine, after_drift=False, experiments=experiments)
-    found = ident.parameters((min(cut), max(cut)), cut_depth, job.controller.reference_force_n)
-    identified = tuple(a for node, params in found.items() for a in assignments(node, params))
-    predictions = verify(job, ident, identified, cut_depth, plants=plants,
+    predictions = verify(job, ident, tuple(identified), cut_depth, plants=plants,
                          seed=machine.seed + machine.index)
-    return Commissioned(identified, predictions[0], tuple(predictions))
+    return Commissioned(tuple(identified), predictions[0], tuple(predictions), tuple(monitor))
 
 
 def run_job(machine: Machine, sets: Sequence[str] = (),

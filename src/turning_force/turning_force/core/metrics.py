@@ -24,7 +24,8 @@ METRIC_NAMES = ('mean_abs_error_n', 'steady_mean_abs_error_n', 'max_abs_error_n'
                 'entry_overshoot_n', 'settling_time_s', 'ripple_p2p_n', 'override_changes_per_s',
                 'reachable_fraction')
 # Where a run has them: the estimator's error against a recorded truth, the loop's alarms.
-OPTIONAL_METRICS = ('estimate_error_rms_n', 'oscillation_alarms')
+OPTIONAL_METRICS = ('estimate_error_rms_n', 'oscillation_alarms', 'drift_alarms',
+                    'drift_alarm_s')
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,7 @@ def compute_metrics(
     reachable: npt.NDArray[np.bool_] | None = None,
     estimate_n: FloatArray | None = None,
     oscillation_alarm: FloatArray | None = None,
+    drift_alarm: FloatArray | None = None,
 ) -> dict[str, float]:
     """The DESIGN.md metrics of one run, taken with the tool in the cut (``depth_mm > 0``): the
     time in air between two cuts is no regulation error.
@@ -77,6 +79,9 @@ def compute_metrics(
       true ``force_n``): the estimator's RMS error in the cut.
     - ``oscillation_alarms`` (where ``oscillation_alarm``, 1 while the controller's alarm
       holds, is given): how often it was raised.
+    - ``drift_alarms``, ``drift_alarm_s`` (where ``drift_alarm``, the drift monitor's cause
+      while its alarm holds, 0 none, is given): how often it named a cause, and (where it did)
+      the time from the first entry into the cut to the first.
     """
     in_cut = depth_mm > 0
     if not np.any(in_cut):
@@ -145,4 +150,9 @@ def compute_metrics(
     if oscillation_alarm is not None:
         raised = np.diff(oscillation_alarm > 0.0, prepend=False)
         metrics['oscillation_alarms'] = float(np.count_nonzero(raised & (oscillation_alarm > 0)))
+    if drift_alarm is not None:
+        named = np.diff(drift_alarm, prepend=0.0) != 0.0
+        metrics['drift_alarms'] = float(np.count_nonzero(named & (drift_alarm > 0)))
+        if np.any(drift_alarm > 0):
+            metrics['drift_alarm_s'] = float(t_s[np.argmax(drift_alarm > 0)]) - start
     return metrics

@@ -61,6 +61,7 @@ class ForceControllerNode(Node):
         self.diagnostics.set_value('controller', settings.controller)
         self._reachable = True
         self._oscillating = False
+        self._drift = 0
         self.spindle = SpindleSpeedInput(self, self.diagnostics, settings.spindle_speed_stale_s,
                                          settings.spindle_speed_rpm)
         self._publisher = self.create_publisher(FeedCommand, 'control/feed_command', 10)
@@ -142,6 +143,13 @@ class ForceControllerNode(Node):
                 if settings.oscillation_reaction == 'none':
                     text = text.split(';')[0] + '; oscillation_reaction none: regulating on'
                 self.diagnostics.warn(text, log=True)
+        if out.drift != self._drift:   # the drift monitor named a cause (control.drift)
+            self._drift = out.drift
+            text = self._controller.drift
+            self.diagnostics.set_value('drift', text)
+            if text:
+                self.diagnostics.warn(f'the machine drifted from its identified model: {text}',
+                                      log=True)
         if out.reachable != self._reachable:
             self._reachable = out.reachable
             self.diagnostics.set_value('reference_reachable', out.reachable)

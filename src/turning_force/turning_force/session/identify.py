@@ -174,6 +174,7 @@ def format_parameters(sections: Mapping[str, Mapping[str, Any]], header: Sequenc
     for node, params in sections.items():
         lines += [f'/**/{node}:', '  ros__parameters:' + ('' if params else ' {}')]
         for name, value in params.items():   # numbers to 6 digits
-            text = value if isinstance(value, str) else yaml_text(float(f'{float(value):.6g}'))
+            text = (value if isinstance(value, str) else yaml_text(value)
+                    if isinstance(value, bool) else yaml_text(float(f'{float(value):.6g}')))
             lines.append(f'    {name}: {text}')
     return '\n'.join(lines) + '\n'

@@ -173,6 +173,8 @@ METRIC_LABELS = {
     'reachable_fraction': ('reference reachable', 'of the cut'),
     'estimate_error_rms_n': ('estimate error rms', 'N'),
     'oscillation_alarms': ('oscillation alarms', ''),
+    'drift_alarms': ('drift alarms', ''),
+    'drift_alarm_s': ('first drift alarm', 's in the cut'),
     'realtime_factor': ('realtime factor', 'x'),
 }
 

@@ -15,9 +15,10 @@ import numpy as np
 import numpy.typing as npt
 
 from turning_force.core.compiled import activate
-from turning_force.core.control import update
+from turning_force.core.control import drift, update
 from turning_force.core.control.law import (
     C_CONT,
+    C_DRIFT,
     C_EF,
     C_FEED_RATE,
     C_FEED_REV,
@@ -34,11 +35,14 @@ from turning_force.core.control.law import (
     C_RPM,
     C_RPM_SET,
     C_UNREACH,
+    CS_DRIFT,
     CS_HELD,
     CS_LAW,
     CS_O_ALARMS,
     CS_RESETS,
     OSCILLATION_REACTIONS,
+    OUT_DRIFT,
+    OUT_DRIFT_SIZE,
     OUT_ERR,
     OUT_OSC,
     OUT_PCT,
@@ -96,6 +100,7 @@ class Controller:
         self._levels = np.array(self._table.levels_pct, dtype=np.float64)
         self._params, size = _params(settings, self._table)
         self._state = np.zeros(CS_LAW + size)
+        self._state[CS_DRIFT + drift.DS_APPLIED] = math.nan   # no override applied told yet
         self._state[CS_HELD] = min(max(settings.initial_override_pct, self.min_pct),
                                    self.max_pct)
         update.controller_start(self._params, self._state)
@@ -137,6 +142,11 @@ class Controller:
     def oscillation_alarms(self) -> int:
         """How often the oscillation alarm was raised (:func:`.update.controller_update`)."""
         return int(self._state[CS_O_ALARMS])
+
+    @property
+    def drift(self) -> str:
+        """The drift alarm in words (:func:`.drift.drift_text`; '' while none holds)."""
+        return drift.drift_text(self.settings, *drift.alarm(self._state[CS_DRIFT:CS_LAW]))
 
     @property
     def resets(self) -> int:
@@ -184,7 +194,8 @@ class Controller:
         update.control_step(self._params, self._state, self._levels, float(force_n),
                             float(force_rate_n_s), out)
         return ControlOutput(float(out[OUT_PCT]), float(out[OUT_ERR]), float(out[OUT_S]),
-                             bool(out[OUT_REACH] != 0.0), bool(out[OUT_OSC] != 0.0))
+                             bool(out[OUT_REACH] != 0.0), bool(out[OUT_OSC] != 0.0),
+                             int(out[OUT_DRIFT]), float(out[OUT_DRIFT_SIZE]))
 
 
 def _params(c: ControllerSettings, table: OverrideTable) -> tuple[FloatArray, int]:
@@ -205,5 +216,6 @@ def _params(c: ControllerSettings, table: OverrideTable) -> tuple[FloatArray, in
     p[C_CONT] = table.continuous
     p[C_FEED_REV] = c.programmed_feed_mm_rev
     p[C_RPM_SET] = p[C_RPM] = c.spindle_speed_rpm
+    p[C_DRIFT:C_LAW] = drift.drift_fill(c)
     p[C_LAW:] = own
     return p, size

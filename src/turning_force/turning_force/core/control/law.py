@@ -36,6 +36,7 @@ import numpy.typing as npt
 
 from turning_force.core import shared
 from turning_force.core.compiled import Arr, compiled, entry, pymax, pymin
+from turning_force.core.control import drift
 from turning_force.core.pmc.overrides import get_table, override_table
 from turning_force.core.settings import Settings, setting
 
@@ -66,7 +67,8 @@ C_OSC_SWING, C_OSC_COUNT, C_OSC_REACTION = range(10, 13)   # the oscillation ala
 # The spindle: the programmed feed [mm/rev], the spindle_speed_rpm parameter, the speed in use
 # (the live one, machine/spindle_speed, where it is given: :func:`spindle_speed`).
 C_FEED_REV, C_RPM_SET, C_RPM = range(13, 16)
-C_LAW = 16
+C_DRIFT = 16   # the drift monitor's parameters (.drift), drift.PARAMS of them
+C_LAW = C_DRIFT + drift.PARAMS
 # State every law has (cs): the request held, the quantiser's carry, the time pinned at an end
 # of the table and which end, the resets; whether the tool is in the cut (the last override
 # applied said so); the oscillation detector's (.update): the direction of the error's current
@@ -78,10 +80,12 @@ C_LAW = 16
 CS_HELD, CS_CARRY, CS_PINNED, CS_RESETS, CS_SIDE, CS_ENGAGED = range(6)
 (CS_O_DIR, CS_O_EXT, CS_O_LAST, CS_O_SWING, CS_O_COUNT, CS_O_SINCE, CS_O_ALARM, CS_O_ALARMS,
  CS_O_MEAN, CS_O_HOLD, CS_O_HALVES, CS_O_CROSSOVER, CS_O_WAIT) = range(6, 19)
-CS_LAW = 19
-# One period's output: request, error, sliding variable, reachable, oscillation alarm.
-OUT_PCT, OUT_ERR, OUT_S, OUT_REACH, OUT_OSC = range(5)
-OUT_SIZE = 5
+CS_DRIFT = 19   # the drift monitor's state (.drift), drift.STATE values
+CS_LAW = CS_DRIFT + drift.STATE
+# One period's output: request, error, sliding variable, reachable, oscillation alarm, the
+# drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
+OUT_PCT, OUT_ERR, OUT_S, OUT_REACH, OUT_OSC, OUT_DRIFT, OUT_DRIFT_SIZE = range(7)
+OUT_SIZE = 7
 # What the oscillation alarm does (oscillation_reaction).
 OSCILLATION_REACTIONS = ('detune', 'hold_mean', 'programmed_feed', 'none')
 
@@ -190,9 +194,52 @@ class ControllerBase(Settings):
         'hold the mean override of the last second (hold_mean), ask for the programmed feed '
         '(programmed_feed), or nothing but the alarm (none)',
         choices=OSCILLATION_REACTIONS, dynamic=True)
+    # The drift monitor (.drift): the identified model above and its uncertainties, which
+    # `turning-force identify` writes.
+    drift_monitor: bool = setting(
+        False, 'Drift monitor: compare the estimated force in the cut with what the identified '
+        'model (model_*, drift_*) predicts from the override applied, and say what drifted '
+        '(PMC dead time, servo, process gain, friction) and by how much; identify turns it on')
+    drift_sigmas: float = setting(
+        4.0, 'Drift monitor: how many standard deviations (of the identified values, and of '
+        "the monitor's own likelihood-ratio statistic) a difference must reach to be drift",
+        '-', low=1.0, high=20.0, cite='Basseville & Nikiforov 1993, Sec. 4.2')
+    drift_memory_s: float = setting(
+        1.0, 'Drift monitor: the window it fits the model over, and how long a cause must '
+        'stand before the alarm', 's', low=0.1, high=60.0)
+    drift_ksd_min_n_mm: float = setting(
+        0.0, "Drift monitor: the identified K_s d at the job's shallowest depth (the secant at "
+        'the programmed feed, Park Eq. 7)', 'N/mm', low=0.0, high=1e7)
+    drift_ksd_max_n_mm: float = setting(
+        0.0, "Drift monitor: the identified K_s d at the job's deepest depth", 'N/mm', low=0.0,
+        high=1e7)
+    drift_ksd_std: float = setting(
+        0.0, 'Drift monitor: relative standard deviation of a force the identified process '
+        'model predicts (its parameters and its residual in the commissioning cut)', '-',
+        low=0.0, high=1.0)
+    drift_friction_n: float = setting(
+        0.0, "Drift monitor: the identified friction current at the programmed feed, as force "
+        "(Park Eqs. 25, 26): a friction drift's share of the estimate is measured against it",
+        'N', low=0.0, high=1e5)
+    drift_friction_std: float = setting(
+        0.0, 'Drift monitor: relative standard deviation of the identified friction',
+        '-', low=0.0, high=1.0)
+    drift_friction_max_change: float = setting(
+        0.5, 'Drift monitor: the largest friction change it names, relative (as the '
+        "estimator's friction re-zero follows at most rezero_max_change); a larger offset is "
+        'no friction drift', '-', low=0.0, high=10.0)
+    drift_dead_time_std_s: float = setting(
+        0.0, 'Drift monitor: standard deviation of the identified PMC dead time', 's', low=0.0,
+        high=1.0)
+    drift_servo_std: float = setting(
+        0.0, "Drift monitor: relative standard deviation of the identified servo's time scale",
+        '-', low=0.0, high=1.0)
 
     def check(self) -> None:
         super().check()
+        if self.drift_monitor and not 0.0 < self.drift_ksd_min_n_mm <= self.drift_ksd_max_n_mm:
+            self.fail('drift_ksd_min_n_mm', 'the drift monitor needs 0 < drift_ksd_min_n_mm <= '
+                      f'drift_ksd_max_n_mm ({self.drift_ksd_max_n_mm!r}): identify writes them')
         table = get_table(self.override_table)
         if not table.min_pct <= self.initial_override_pct <= table.max_pct:
             self.fail('initial_override_pct', f'outside the {table.name} range '
@@ -245,3 +292,5 @@ class ControlOutput:
     sliding_variable: float
     reachable: bool = True
     oscillating: bool = False   # the oscillation alarm (.update.controller_update) holds
+    drift: int = 0              # the drift alarm: what drifted (.drift.CAUSES' index), 0 none
+    drift_size: float = 0.0     # by how much (relative; seconds for the dead time)

@@ -18,11 +18,14 @@ import numpy as np
 
 from turning_force.core.compiled import Arr, compiled, entry, pymax, pymin, quantise, table_row
 from turning_force.core.control import dispatch
+from turning_force.core.control.drift import DS_ALARM, DS_ALARM_SIZE, drift_applied, drift_step
 from turning_force.core.control.law import (
     C_CONT,
+    C_DRIFT,
     C_EF,
     C_GAP,
     C_KIND,
+    C_LAW,
     C_MAX,
     C_MIN,
     C_OSC_COUNT,
@@ -33,8 +36,10 @@ from turning_force.core.control.law import (
     C_RPM,
     C_UNREACH,
     CS_CARRY,
+    CS_DRIFT,
     CS_ENGAGED,
     CS_HELD,
+    CS_LAW,
     CS_O_ALARM,
     CS_O_ALARMS,
     CS_O_COUNT,
@@ -51,6 +56,8 @@ from turning_force.core.control.law import (
     CS_PINNED,
     CS_RESETS,
     CS_SIDE,
+    OUT_DRIFT,
+    OUT_DRIFT_SIZE,
     OUT_ERR,
     OUT_OSC,
     OUT_PCT,
@@ -234,10 +241,14 @@ def _forget(cs: np.ndarray) -> None:
 def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force: float,
                       rate: float, out: np.ndarray) -> None:
     """One control period: the law, the guard on its state, the error-feedback quantiser,
-    the reachability flag and the oscillation alarm with its reaction; out = (pct, error, s,
-    reachable, oscillating)."""
+    the reachability flag, the oscillation alarm with its reaction and the drift monitor
+    (:mod:`.drift`, which only watches); out = (pct, error, s, reachable, oscillating, drift,
+    drift's size)."""
     error = force - cp[C_REF]
     out[OUT_OSC] = cs[CS_O_ALARM]
+    monitor = cs[CS_DRIFT:CS_LAW]
+    drift_step(cp[C_DRIFT:C_LAW], monitor, force, cs[CS_ENGAGED] != 0.0, cs[CS_HELD])
+    out[OUT_DRIFT], out[OUT_DRIFT_SIZE] = monitor[DS_ALARM], monitor[DS_ALARM_SIZE]
     if not (math.isfinite(force) and math.isfinite(rate)):
         _recover(cp, cs, error, out)
         return
@@ -282,6 +293,7 @@ def controller_applied(cp: np.ndarray, cs: np.ndarray, applied: float, engaged: 
     the cut starts from the feed the tool meets the work with (the oscillation reaction's
     level too). Out of the cut, the oscillation detector starts afresh; its alarm holds."""
     cs[CS_ENGAGED] = 1.0 if engaged else 0.0
+    drift_applied(cs[CS_DRIFT:CS_LAW], applied)
     if not engaged:
         _forget(cs)
     if reason != REASON_NORMAL and math.isfinite(applied):

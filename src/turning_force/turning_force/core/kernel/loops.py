@@ -23,6 +23,8 @@ from turning_force.core.compiled import (
 )
 from turning_force.core.control.law import (
     C_REF,
+    OUT_DRIFT,
+    OUT_DRIFT_SIZE,
     OUT_ERR,
     OUT_OSC,
     OUT_PCT,
@@ -142,6 +144,7 @@ def _trace_row(trace: np.ndarray, k: int, t_end: float, truth: np.ndarray, n: in
     trace[k, 6], trace[k, 7], trace[k, 8] = truth[2, n - 1], last[0], applied
     trace[k, 9], trace[k, 10], trace[k, 11] = last[1], last[2], last[3]
     trace[k, 12], trace[k, 13] = truth[3, n - 1], reason
+    trace[k, 14], trace[k, 15] = last[4], last[5]
 
 
 @compiled
@@ -174,9 +177,10 @@ def _closed_loop(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_
     k1 - 1, the plant then :func:`chain_step`, trace rows k0 .. k1 - 1; noise arrays start at
     block k0, ``inputs`` (n, 5) at block 0 (where the plant's spindle speed input is wired, its
     column 3 is written from the plant's speed block by block). ``last`` is the command that
-    stands (pct, sliding, reachable, oscillating). Where ``keep``, every block as well: its
-    first stamp into t0s[k], its samples into row k of u, v, angle and feed_rate, the chain's
-    row (CH_*) into rows[k]. Returns the override applied to the next block."""
+    stands (pct, sliding, reachable, oscillating, drift, drift's size). Where ``keep``, every
+    block as well: its first stamp into t0s[k], its samples into row k of u, v, angle and
+    feed_rate, the chain's row (CH_*) into rows[k]. Returns the override applied to the next
+    block."""
     n = int(pp[P_N])
     dt = pp[P_DT]
     uk, vk, ak, fk = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
@@ -198,6 +202,7 @@ def _closed_loop(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_
         if acted:
             last[0], last[1], last[2], last[3] = (out[OUT_PCT], out[OUT_S], out[OUT_REACH],
                                                   out[OUT_OSC])
+            last[4], last[5] = out[OUT_DRIFT], out[OUT_DRIFT_SIZE]
         if keep:
             t0s[k] = t0
             _chain_row(rows, k, es, acted, out, cp, gs, dec)

@@ -43,6 +43,8 @@ TRACE_NAMES = (
     'oscillation_alarm',    # 1 while the controller's oscillation alarm holds, else 0
     'spindle_speed_rpm',    # the spindle's true speed at the end of the block
     'override_reason',      # why the override answering the block is what it is (Reason)
+    'drift_alarm',          # what the drift monitor found drifted (control.drift.CAUSES), 0 none
+    'drift_size',           # by how much (relative; seconds for the dead time)
 )
 
 
@@ -54,6 +56,8 @@ class SimulationResult:
     metrics: dict[str, float] = field(default_factory=dict)
     # The cuts that ended during the run (the gate's cut log, CUT_* rows of the kernel).
     cut_rows: FloatArray = field(default_factory=lambda: np.empty((0, 0)))
+    # The drift monitor's alarm at the end, in words ('' none: control.drift.drift_text).
+    drift: str = ''
 
 
 @dataclass
@@ -101,7 +105,7 @@ def run_loop(experiment: Experiment, kept: CoreArrays | None = None) -> Simulati
     rows = np.empty((steps, len(TRACE_NAMES)))
     cuts = np.zeros((steps // 2 + 1, CUT_FIELDS))
     ncuts = np.zeros(1)
-    last = np.array([applied, 0.0, 1.0, 0.0])
+    last = np.array([applied, 0.0, 1.0, 0.0, 0.0, 0.0])
     for start in range(0, steps, CHUNK_BLOCKS):
         end = min(start + CHUNK_BLOCKS, steps)
         noise_u, noise_v, noise_f, noise_fr = plant.draw_noise(end - start)
@@ -126,8 +130,10 @@ def run_loop(experiment: Experiment, kept: CoreArrays | None = None) -> Simulati
             trace['t_s'], trace['force_n'], trace['reference_n'], trace['depth_mm'],
             trace['applied_override_pct'], depth_changes_s,
             experiment.metric_settings, reachable=trace['reference_reachable'] > 0.5,
-            estimate_n=trace['estimated_force_n'], oscillation_alarm=trace['oscillation_alarm'])
+            estimate_n=trace['estimated_force_n'], oscillation_alarm=trace['oscillation_alarm'],
+            drift_alarm=trace['drift_alarm'] if experiment.controller.drift_monitor else None)
     except NoCutError:
         metrics = {}
     metrics['realtime_factor'] = experiment.run.duration_s / (time.perf_counter() - wall_start)
-    return SimulationResult(trace, metrics, cuts[:min(int(ncuts[0]), len(cuts))].copy())
+    return SimulationResult(trace, metrics, cuts[:min(int(ncuts[0]), len(cuts))].copy(),
+                            chain.controller.drift)

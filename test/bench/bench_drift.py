@@ -1,0 +1,80 @@
+"""The drift monitor on generated machines (issue 16 item 2): each machine of the commissioning
+issue's generator is commissioned as it is (the commissioning experiment recorded, ``identify``
+with its job's depths: the identified model and the monitor's settings), then its job is cut on
+the machine unchanged and after each of the issue's drifts: PMC dead time +50 %, process gain
++40 % (K_s), feed friction +25 %, servo x1.8 (tau, or 1 / w_n). Printed for each: the time from
+the first entry into the cut to the first alarm, the cause named and its size, and a summary:
+the right cause named within 5 s of cutting, and alarms on the unchanged machine::
+
+    .venv/bin/python test/bench/bench_drift.py --machines 8 --seed 16
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Mapping
+from dataclasses import replace
+from typing import Any
+
+from turning_force.commands.population import (
+    Machine,
+    draw,
+    identified_sets,
+    identify_machine,
+    job_experiment,
+)
+from turning_force.core.control.drift import CAUSES
+from turning_force.core.kernel.simulate import simulate
+from turning_force.core.plant.drive import FeedDriveSettings
+
+DEADLINE_S = 5.0
+DRIVE = FeedDriveSettings()   # the generator's machines keep the drive's friction
+
+
+def drifted(machine: Machine) -> dict[str, Mapping[str, Any]]:
+    """The issue's four drifts of ``machine`` as its ``lathe_sim`` settings after them."""
+    p = machine.plant
+    servo = ({'servo_time_constant_s': p['servo_time_constant_s'] * 1.8}
+             if p['servo_model'] == 'first_order'
+             else {'servo_natural_freq_rad_s': p['servo_natural_freq_rad_s'] / 1.8})
+    return {
+        'PMC dead time': {'pmc_dead_time_s': p['pmc_dead_time_s'] * 1.5},
+        'process gain': {'specific_cutting_force_n_mm2': p['specific_cutting_force_n_mm2'] * 1.4},
+        'friction': {'friction_at_min_feed_a': DRIVE.friction_at_min_feed_a * 1.25,
+                     'friction_at_max_feed_a': DRIVE.friction_at_max_feed_a * 1.25},
+        'servo': servo,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--machines', type=int, default=8)
+    parser.add_argument('--seed', type=int, default=16)
+    args = parser.parse_args()
+    right = dict.fromkeys(CAUSES[1:], 0)
+    false_alarms = 0
+    for machine in draw(args.machines, args.seed):
+        machine = replace(machine, drift='', drifted={})   # commissioned as it is
+        ident, cut_depth = identify_machine(machine)
+        identified, monitor = identified_sets(machine, ident, cut_depth)
+        print(machine.describe())
+        for cause, change in {'(none)': {}, **drifted(machine)}.items():
+            run = replace(machine, drifted=change)
+            result = simulate(job_experiment(run).with_sets(identified + monitor))
+            named = result.trace['drift_alarm']
+            first = CAUSES[int(named[named.argmax()])] if named.any() else ''
+            at_s = result.metrics.get('drift_alarm_s', float('nan'))
+            ok = first == cause and at_s <= DEADLINE_S
+            if cause == '(none)':
+                false_alarms += bool(first)
+            else:
+                right[cause] += ok
+            print(f'  {cause:14s} alarm at {at_s:5.2f} s: {first or "none":14s} '
+                  f'{result.drift or "-"}')
+    print(f'{args.machines} machines, seed {args.seed}: the right cause within {DEADLINE_S:g} s: '
+          + ', '.join(f'{cause} {n} of {args.machines}' for cause, n in right.items())
+          + f'; alarms on the unchanged machines: {false_alarms} of {args.machines}')
+
+
+if __name__ == '__main__':
+    main()
