@@ -80,8 +80,12 @@ JOBS ?= 2
 test: lint
 	$(PY) -m pytest -q -n $(JOBS) -m 'not slow' test
 
+# Then the core's tests again with numba's bounds checks on (its own cache: the checks are
+# compiled in): compiled code checks no index, and a write past an array corrupts the heap.
 test-all: lint
 	$(PY) -m pytest -q -n $(JOBS) test
+	NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=$(HOME)/.cache/turning_force/numba-boundscheck \
+		$(PY) -m pytest -q -n $(JOBS) test/core
 
 # make bench: issue 9's table, old beside new, in one run (about ten minutes), then
 # commissioning on 200 simulated machines (about ten more);
