@@ -2,9 +2,9 @@
 commissioning issue's generator, its job's session is recorded (the uncommissioned defaults
 cutting the job on the machine as it is then, drifted where it drifts), then two candidates are
 tried on that session in closed loop (``replay --closed-loop``: the plant identified from the
-session itself, on the controller's own override steps) and against a real run of each on the
-true machine. Printed: the prediction within 20 % or 1 N of the real run, and the two
-candidates ranked as their real runs rank::
+session itself, on the controller's own override steps; the most typical of the noise draws,
+with their range) and against a real run of each on the true machine. Printed: the prediction
+within 20 % or 1 N of the real run, and the two candidates ranked as their real runs rank::
 
     .venv/bin/python test/bench/bench_whatif.py --machines 20 --seed 15
 """
@@ -37,17 +37,19 @@ def main() -> None:
             job = job_experiment(machine)
             record_core(job, base / 'job')
             pairs = []
+            spreads = []
             for candidate in CANDIDATES:
-                predicted = what_if(base / 'job', candidate).predicted[STEADY]
+                result = what_if(base / 'job', candidate)
                 real = simulate(job.with_sets(list(candidate))).metrics[STEADY]
-                pairs.append((predicted, real))
+                pairs.append((result.predicted[STEADY], real))
+                spreads.append(result.spread)
         close = all(abs(p - r) <= max(0.2 * r, 1.0) for p, r in pairs)
         order = (pairs[0][0] < pairs[1][0]) == (pairs[0][1] < pairs[1][1])
         within += close
         ranked += order
         print(f'{machine.describe()}: ' + '; '.join(
-            f'{c[0].split(".")[1]} predicted {p:.2f} N, real {r:.2f} N'
-            for c, (p, r) in zip(CANDIDATES, pairs, strict=True))
+            f'{c[0].split(".")[1]} predicted {p:.2f} N (draws {lo:.1f}-{hi:.1f}), real {r:.2f} N'
+            for c, (p, r), (lo, hi) in zip(CANDIDATES, pairs, spreads, strict=True))
             + ('' if close else '  [outside 20 % / 1 N]') + ('' if order else '  [ranked wrong]'))
     print(f'within 20 % or 1 N: {within} of {args.machines}; ranked right: {ranked} of '
           f'{args.machines}')

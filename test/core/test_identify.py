@@ -255,6 +255,17 @@ PRODUCTION = {
                                    'lathe_sim.depth_mm=[1.0, 2.5]',
                                    'lathe_sim.depth_interpolation=linear',
                                    'lathe_sim.friction_at_min_feed_a=0.5'],
+    # The estimator's friction right, an interrupted cut (three 3 s pieces, the longest used).
+    'interrupted_friction_right': ['lathe_sim.pmc_dead_time_s=0.085',
+                                   'lathe_sim.servo_time_constant_s=0.335',
+                                   'lathe_sim.cutting_exponent=0.675',
+                                   'lathe_sim.specific_cutting_force_n_mm2=1078.7',
+                                   'lathe_sim.current_noise_a=0.0631',
+                                   'lathe_sim.cutting_time_constant_s=0.024',
+                                   '/**.spindle_speed_rpm=1178.0',
+                                   'lathe_sim.depth_times_s=[0.0, 3.0, 4.0, 7.0, 8.0]',
+                                   'lathe_sim.depth_mm=[2.0, 0.0, 2.0, 0.0, 2.0]',
+                                   'experiment.duration_s=11.0'],
 }
 
 
@@ -284,7 +295,14 @@ def test_a_production_cut_identifies_the_machine_in_closed_loop(fig8, machine):
     in_cut = run.recording.feed_rate_mm_min[run.depth_mm.min(axis=1) > 0]
     feeds = np.percentile(in_cut, [25.0, 50.0, 75.0])
     true = job.plant.friction.current_a(feeds)
-    assert np.all(np.abs(job.estimator.friction.current_a(feeds) - true) > 0.07)
+    if machine != 'interrupted_friction_right':
+        assert np.all(np.abs(job.estimator.friction.current_a(feeds) - true) > 0.07)
     np.testing.assert_allclose(ident.friction_model.current_a(feeds), true, atol=0.02)
     errors = [ident.process[f'friction_error_at_{end}_a'] for end in ('min', 'max')]
     assert all(e.std > 0 for e in errors)
+    if machine == 'interrupted_friction_right':
+        # The errors the short cut found are inside FRICTION_SIGNIFICANCE standard deviations
+        # (as they should be: the prior is right): the curve is kept as it was, not moved.
+        assert all(abs(e.value) <= 2.0 * e.std for e in errors)
+        assert ident.friction.model == 'prior'
+        assert ident.friction_model == job.estimator.friction

@@ -17,6 +17,7 @@ from turning_force.cli import main
 from turning_force.commands.core_session import NOT_RECORDED, RECORDER, TOPICS, record_core
 from turning_force.commands.run import run_lockstep
 from turning_force.core.experiment import load_experiment
+from turning_force.core.kernel.simulate import simulate
 from turning_force.nodes.session_recorder import GRAPH_TOPICS, msgtype
 from turning_force.session.bag import CUSTOM_EXPERIMENT, CUSTOM_PARAMETERS
 from turning_force.session.reader import read_session, recorded_metrics
@@ -123,3 +124,17 @@ def test_run_core_out_writes_a_session(fig8, tmp_path, capsys):
     assert len(session.blocks) == BLOCKS
     assert recorded_metrics(session)['mean_abs_error_n'] == pytest.approx(
         out['metrics']['mean_abs_error_n'], rel=1e-12)
+
+
+def test_a_tapers_recorded_metrics_are_the_runs(fig8, tmp_path):
+    # A taper's depth changes in every block of its ramp: read back, the ramp is the one change
+    # the run measured from, not a change per block that leaves no steady sample (0 N).
+    experiment = load_experiment(fig8).with_sets([
+        'experiment.duration_s=3.0', 'lathe_sim.depth_times_s=[0.0, 3.0]',
+        'lathe_sim.depth_mm=[1.0, 2.0]', 'lathe_sim.depth_interpolation=linear'])
+    record_core(experiment, tmp_path / 'taper')
+    recorded = recorded_metrics(read_session(tmp_path / 'taper'))
+    run = simulate(experiment).metrics
+    assert recorded['steady_mean_abs_error_n'] > 0.0
+    for name in ('steady_mean_abs_error_n', 'ripple_p2p_n', 'mean_abs_error_n'):
+        assert recorded[name] == pytest.approx(run[name], rel=1e-9), name

@@ -980,14 +980,21 @@ def _depth_change_times(session: Session, experiment: Experiment) -> list[float]
     simulator's start: there the changes are taken from the recorded depth instead (the start
     of the first block at each new depth).
     """
-    planned = experiment.plant.depth_profile.change_times_s()
+    profile = experiment.plant.depth_profile
+    planned = profile.change_times_s()
     if not session.has_truth:
         return list(planned)
     depth, starts = session.signals['depth_mm'], session.t_s - _block_lengths_s(session)
     known = np.flatnonzero(np.isfinite(depth))
     changed: list[float] = starts[known[1:][depth[known[:-1]] != depth[known[1:]]]].tolist()
     block_s = float(np.median(session.t_s[1:] - session.t_s[:-1])) if len(starts) > 1 else 0.0
-    if all(any(abs(c - p) <= block_s for p in planned) for c in changed):
+    # A taper's depth changes in every block of its ramp: the ramp is one planned change.
+    ramps = [(t0, t1) for t0, t1, d0, d1 in zip(profile.times_s[:-1], profile.times_s[1:],
+                                                profile.depth_mm[:-1], profile.depth_mm[1:],
+                                                strict=True)
+             if profile.interpolation == 'linear' and d0 != d1]
+    if all(any(abs(c - p) <= block_s for p in planned)
+           or any(t0 - block_s <= c <= t1 + block_s for t0, t1 in ramps) for c in changed):
         return list(planned)   # on the plant's time line: the planned times, exactly
     return changed
 
