@@ -74,11 +74,12 @@ C_LAW = 16
 # the last swing, the swings counted, the time since the last turn, the alarm (1 while it
 # holds), the alarms raised, the mean level sent, the level the reaction holds (the detune
 # reaction's integral), the counted swings' half-periods' sum, the detune reaction's
-# crossover, and whether it waits for the force to settle (1) after the gate set the feed.
+# crossover, whether it waits for the force to settle (1) after the gate set the feed, and
+# whether the last swing was larger than the one before (1: a kick's return, .update._turn).
 CS_HELD, CS_CARRY, CS_PINNED, CS_RESETS, CS_SIDE, CS_ENGAGED = range(6)
 (CS_O_DIR, CS_O_EXT, CS_O_LAST, CS_O_SWING, CS_O_COUNT, CS_O_SINCE, CS_O_ALARM, CS_O_ALARMS,
- CS_O_MEAN, CS_O_HOLD, CS_O_HALVES, CS_O_CROSSOVER, CS_O_WAIT) = range(6, 19)
-CS_LAW = 19
+ CS_O_MEAN, CS_O_HOLD, CS_O_HALVES, CS_O_CROSSOVER, CS_O_WAIT, CS_O_GREW) = range(6, 20)
+CS_LAW = 20
 # One period's output: request, error, sliding variable, reachable, oscillation alarm.
 OUT_PCT, OUT_ERR, OUT_S, OUT_REACH, OUT_OSC = range(5)
 OUT_SIZE = 5
@@ -182,8 +183,9 @@ class ControllerBase(Settings):
         cite='Astrom & Hagglund 1984 (a limit cycle as a relay experiment)')
     oscillation_swings: int = setting(
         4, 'Oscillation alarm: this many counted swings in a row raise it, each no smaller '
-        'than 0.7 of the one before and 0.08-2 s after it (a depth step gives two: its rise '
-        'and its return; noise turns faster)', '-', low=2, high=100, dynamic=True)
+        'than 0.7 of the one before (0.3 for the third after a rise and a larger return: a '
+        'depth step or an entry) and 0.07-2 s after it (a depth step gives two: its rise and '
+        'its return; noise turns faster)', '-', low=2, high=100, dynamic=True)
     oscillation_reaction: str = setting(
         'detune', 'What the oscillation alarm does until the run ends or the tool changes: '
         "a slow integral law whose crossover is a sixth of the oscillation's frequency (detune), "

@@ -41,6 +41,7 @@ from turning_force.core.control.law import (
     CS_O_CROSSOVER,
     CS_O_DIR,
     CS_O_EXT,
+    CS_O_GREW,
     CS_O_HALVES,
     CS_O_HOLD,
     CS_O_LAST,
@@ -68,10 +69,17 @@ REASON_NORMAL = 0
 # The oscillation detector: a turning point is where the error has come back this fraction of
 # the alarm's swing from its extreme (hysteresis against noise); a counted swing is at least
 # DECAY of the one before (a transient's swings die away, a limit cycle's do not) and comes
-# HALF_MIN_S to HALF_MAX_S after it (noise turns faster; slower is no cycle); the mean level
-# sent is taken over MEAN_S.
-OSC_HYSTERESIS, OSC_DECAY, OSC_MEAN_S = 1.0 / 3.0, 0.7, 1.0
-OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.08, 2.0
+# HALF_MIN_S to HALF_MAX_S after it (noise turns faster; slower is no cycle: the fastest loops
+# of the generated population, no dead time and a 0.1 s servo, cycle at 0.07 s a half); the
+# mean level sent is taken over MEAN_S. After a kick (a depth step or an entry: a rise, then
+# a return larger than it, the override held at the table's end through both), the third
+# swing is measured against a return the kick, not the loop, made large: it counts from
+# KICK_DECAY of it, and the fourth is held to DECAY again. A linear loop's transient swings
+# shrink by the same ratio from the third on, so the fourth swing still tells a transient
+# from a cycle; a cycle that starts at a depth step is alarmed a half-period or two sooner,
+# within 2 s of the step where its period is up to about a second.
+OSC_HYSTERESIS, OSC_DECAY, OSC_KICK_DECAY, OSC_MEAN_S = 1.0 / 3.0, 0.7, 0.3, 1.0
+OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.07, 2.0
 # The detune reaction: the limit cycle's frequency w_u = 2 pi / T_u bounds the loop's; an
 # integral law on the relative feed, u' = -w_c u e / F_ref (the force being about proportional
 # to the feed, its crossover is w_c whatever the process gain), with w_c = w_u / DETUNE_RATIO
@@ -138,11 +146,15 @@ def _recover(cp: np.ndarray, cs: np.ndarray, error: float, out: np.ndarray) -> N
 @compiled
 def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     """The error turned at ``extreme``: the swing from the turn before counts toward the
-    alarm if it is large, no smaller than OSC_DECAY of the one before, and took
-    OSC_HALF_MIN_S to OSC_HALF_MAX_S; otherwise the count starts afresh."""
+    alarm if it is large, no smaller than OSC_DECAY of the one before (OSC_KICK_DECAY for the
+    third after a kick), and took OSC_HALF_MIN_S to OSC_HALF_MAX_S; otherwise the count starts
+    afresh."""
     swing, half = abs(extreme - cs[CS_O_LAST]), cs[CS_O_SINCE]
     counts = swing >= cp[C_OSC_SWING] and OSC_HALF_MIN_S <= half <= OSC_HALF_MAX_S
-    if counts and cs[CS_O_COUNT] > 0.0 and swing >= OSC_DECAY * cs[CS_O_SWING]:
+    kicked = cs[CS_O_COUNT] == 2.0 and cs[CS_O_GREW] != 0.0
+    decay = OSC_KICK_DECAY if kicked else OSC_DECAY
+    cs[CS_O_GREW] = 1.0 if swing >= cs[CS_O_SWING] else 0.0
+    if counts and cs[CS_O_COUNT] > 0.0 and swing >= decay * cs[CS_O_SWING]:
         cs[CS_O_COUNT] += 1.0
         cs[CS_O_HALVES] += half
     else:
@@ -221,13 +233,18 @@ def _react(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> float:
 
 
 @compiled
-def _forget(cs: np.ndarray) -> None:
-    """Out of the cut: the detector starts afresh at the next entry. The alarm and its
-    reaction hold until the run ends or the tool changes (:func:`controller_tool`): a loop
-    that cycled cycles again at the next entry, and finding it again would cost another
-    ``oscillation_swings`` swings."""
-    cs[CS_O_DIR], cs[CS_O_COUNT] = 0.0, 0.0
-    cs[CS_O_MEAN] = cs[CS_HELD]
+def _out_of_cut(cp: np.ndarray, cs: np.ndarray) -> None:
+    """A period out of the cut. The detector pauses: a cycle whose troughs carry the force
+    under the gate's exit threshold (``exit_force_n``) leaves the cut at each of them, and
+    the swing goes on from where the force left to where it comes back. Once no turn has come
+    for OSC_HALF_MAX_S (a swing that slow counts for nothing) the detector starts afresh at
+    the next entry. The alarm and its reaction hold until the run ends or the tool changes
+    (:func:`controller_tool`): a loop that cycled cycles again at the next entry, and finding
+    it again would cost another ``oscillation_swings`` swings."""
+    cs[CS_O_SINCE] += cp[C_PERIOD]
+    if cs[CS_O_SINCE] > OSC_HALF_MAX_S:
+        cs[CS_O_DIR], cs[CS_O_COUNT] = 0.0, 0.0
+        cs[CS_O_MEAN] = cs[CS_HELD]
 
 
 @compiled
@@ -244,6 +261,8 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
     if cs[CS_ENGAGED] != 0.0:
         _watch(cp, cs, error)
         out[OUT_OSC] = cs[CS_O_ALARM]
+    else:
+        _out_of_cut(cp, cs)
     kind = int(cp[C_KIND])
     if cs[CS_O_ALARM] != 0.0 and int(cp[C_OSC_REACTION]) != NO_REACTION:
         # the reaction sets the feed; the law is kept at rest on the level held
@@ -280,10 +299,8 @@ def controller_applied(cp: np.ndarray, cs: np.ndarray, applied: float, engaged: 
     period: conditional integration, the anti-windup of Astrom & Hagglund (PID Controllers,
     1995, Sec. 3.5), so that no law winds up against a feed it does not set and each entry into
     the cut starts from the feed the tool meets the work with (the oscillation reaction's
-    level too). Out of the cut, the oscillation detector starts afresh; its alarm holds."""
+    level too)."""
     cs[CS_ENGAGED] = 1.0 if engaged else 0.0
-    if not engaged:
-        _forget(cs)
     if reason != REASON_NORMAL and math.isfinite(applied):
         cs[CS_HELD] = clip(cp, applied)
         cs[CS_CARRY] = 0.0
