@@ -24,30 +24,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'core'))
 
-from test_loop_watch import first_alarm_s, oscillation_onset_s
+from test_loop_watch import first_alarm_s, oscillation_onset_s, ripple_after
 
 from turning_force.commands.population import draw, job_experiment
-from turning_force.core.experiment import Experiment
-from turning_force.core.kernel.simulate import SimulationResult, simulate
-from turning_force.core.metrics import NoCutError, compute_metrics
+from turning_force.core.kernel.simulate import simulate
 
 BAND_STEADY_N, BAND_RIPPLE_N = 5.0, 25.0
 RECOVERY_S = 3.0
-
-
-def ripple_after(result: SimulationResult, job: Experiment, from_s: float) -> float:
-    """``ripple_p2p_n`` of the run from ``from_s`` on (0 where no cut is left)."""
-    trace = result.trace
-    keep = trace['t_s'] >= from_s
-    if not keep.any():
-        return 0.0
-    try:
-        return compute_metrics(
-            trace['t_s'][keep], trace['force_n'][keep], trace['reference_n'][keep],
-            trace['depth_mm'][keep], trace['applied_override_pct'][keep],
-            job.plant.depth_profile.change_times_s(), job.metric_settings)['ripple_p2p_n']
-    except NoCutError:
-        return 0.0
 
 
 def main() -> None:

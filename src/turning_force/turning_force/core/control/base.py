@@ -211,7 +211,8 @@ def _params(c: ControllerSettings, table: OverrideTable) -> tuple[FloatArray, in
     p[C_GAP] = max(b - a for a, b in itertools.pairwise(levels))
     p[C_EF] = c.quantiser == 'error_feedback'
     p[C_UNREACH], p[C_FEED_RATE] = c.unreachable_after_s, c.programmed_feed_rate_mm_min
-    p[C_OSC_SWING], p[C_OSC_COUNT] = c.oscillation_swing_n, c.oscillation_swings
+    p[C_OSC_SWING] = c.oscillation_swing_n if law.closed_loop else 0.0   # 0: not watched
+    p[C_OSC_COUNT] = c.oscillation_swings
     p[C_OSC_REACTION] = OSCILLATION_REACTIONS.index(c.oscillation_reaction)
     p[C_CONT] = table.continuous
     p[C_FEED_REV] = c.programmed_feed_mm_rev

@@ -17,7 +17,8 @@ names it under the ``turning_force.laws`` entry point group). It holds:
   the fresh state of a new cut from the held request ``cs[CS_HELD]``; optionally
   ``finite(cp, cs) -> bool`` (whether the state is fit to go on: the guard resets the law
   otherwise) and ``sent(cp, cs, level)`` (the PMC level sent, once the quantiser chose it);
-- ``LAW = Law(name, Settings, fill, summary)``.
+- ``LAW = Law(name, Settings, fill, summary)`` (``closed_loop=False`` for a law that ignores
+  the force: the oscillation alarm does not watch it).
 
 What every law shares runs around ``step`` (:mod:`.update`): the guard on non-finite input,
 output and state, the error-feedback quantiser, the reachability flag.
@@ -76,11 +77,14 @@ C_LAW = C_DRIFT + drift.PARAMS
 # the last swing, the swings counted, the time since the last turn, the alarm (1 while it
 # holds), the alarms raised, the mean level sent, the level the reaction holds (the detune
 # reaction's integral), the counted swings' half-periods' sum, the detune reaction's
-# crossover, and whether it waits for the force to settle (1) after the gate set the feed.
+# crossover, whether it waits for the force to settle (1) after the gate set the feed, and
+# whether the last swing was larger than the one before (1: a kick's return, .update._turn),
+# and the log of the force's share of the reference the detune reaction saw last period.
 CS_HELD, CS_CARRY, CS_PINNED, CS_RESETS, CS_SIDE, CS_ENGAGED = range(6)
 (CS_O_DIR, CS_O_EXT, CS_O_LAST, CS_O_SWING, CS_O_COUNT, CS_O_SINCE, CS_O_ALARM, CS_O_ALARMS,
- CS_O_MEAN, CS_O_HOLD, CS_O_HALVES, CS_O_CROSSOVER, CS_O_WAIT) = range(6, 19)
-CS_DRIFT = 19   # the drift monitor's state (.drift), drift.STATE values
+ CS_O_MEAN, CS_O_HOLD, CS_O_HALVES, CS_O_CROSSOVER, CS_O_WAIT, CS_O_GREW,
+ CS_O_LOG_FORCE) = range(6, 21)
+CS_DRIFT = 21   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
@@ -186,13 +190,14 @@ class ControllerBase(Settings):
         cite='Astrom & Hagglund 1984 (a limit cycle as a relay experiment)')
     oscillation_swings: int = setting(
         4, 'Oscillation alarm: this many counted swings in a row raise it, each no smaller '
-        'than 0.7 of the one before and 0.08-2 s after it (a depth step gives two: its rise '
-        'and its return; noise turns faster)', '-', low=2, high=100, dynamic=True)
+        'than 0.7 of the one before (0.3 for the third after a rise and a larger return: a '
+        'depth step or an entry) and 0.07-2 s after it (a depth step gives two: its rise and '
+        'its return; noise turns faster)', '-', low=2, high=100, dynamic=True)
     oscillation_reaction: str = setting(
         'detune', 'What the oscillation alarm does until the run ends or the tool changes: '
-        "a slow integral law whose crossover is a sixth of the oscillation's frequency (detune), "
-        'hold the mean override of the last second (hold_mean), ask for the programmed feed '
-        '(programmed_feed), or nothing but the alarm (none)',
+        "a slow PI law on the log of the feed whose crossover is a third of the oscillation's "
+        'frequency (detune), hold the mean override of the last second (hold_mean), ask for '
+        'the programmed feed (programmed_feed), or nothing but the alarm (none)',
         choices=OSCILLATION_REACTIONS, dynamic=True)
     # The drift monitor (.drift): the identified model above and its uncertainties, which
     # `turning-force identify` writes.
@@ -269,6 +274,9 @@ class Law:
     settings: type[ControllerBase]
     fill: Callable[[ControllerBase], tuple[Sequence[float], int]]
     summary: str
+    # False for a law that ignores the force (a scripted excitation): it cannot close a limit
+    # cycle, so the oscillation alarm does not watch it (its steps are no cycle).
+    closed_loop: bool = True
 
     @property
     def module(self) -> ModuleType:

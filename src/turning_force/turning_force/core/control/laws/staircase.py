@@ -97,4 +97,4 @@ def step(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndar
 
 LAW = Law('staircase', Settings, fill,
           "no regulation: a scripted override staircase, the commissioning experiment's "
-          'excitation')
+          'excitation', closed_loop=False)
