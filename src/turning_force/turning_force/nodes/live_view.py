@@ -59,6 +59,11 @@ BAND_SCHEMA = {
                    'high_n': {'type': 'number'}}}
 # How often the re-sends of latched messages asked for by new subscribers go out [s].
 RESEND_PERIOD_S = 0.1
+# Messages the server keeps for a client that is slow to read, before it drops its oldest: the
+# SDK's 1,024 is about a second of the graph's streams (nine topics at 100 Hz and the band),
+# which a client on a busy 2-core PC can outlast (the live-view test lost six overrides so);
+# 16,384 is 18 s of them, a few MB.
+BACKLOG_MESSAGES = 16384
 
 
 def view_topic(topic: str) -> str:
@@ -127,7 +132,8 @@ class LiveViewNode(Node):
         try:
             self.server = foxglove.start_server(
                 name=f'turning_force {self.get_namespace()}', host=settings.host,
-                port=settings.port, context=self._foxglove, server_listener=self._listener)
+                port=settings.port, context=self._foxglove, server_listener=self._listener,
+                message_backlog_size=BACKLOG_MESSAGES)
         except Exception as exc:   # the SDK raises its own error types (address in use, ...)
             message = (f'{self.get_fully_qualified_name()}: cannot serve on '
                        f'{settings.host}:{settings.port}: {exc}')
