@@ -485,11 +485,8 @@ def settings_data(messages: Sequence[bytes]) -> tuple[dict[str, str], list[str]]
 
 
 def _repair_note(text: str) -> str:
-    try:
-        repair = json.loads(text)
-        return f'repaired session: {repair["summary"]}'
-    except (ValueError, KeyError, TypeError):
-        return 'repaired session'
+    repair = _json_object(text) or {}
+    return f'repaired session: {repair["summary"]}' if 'summary' in repair else 'repaired session'
 
 
 @dataclass
