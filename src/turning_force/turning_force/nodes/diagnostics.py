@@ -178,7 +178,6 @@ class AnswerLatency:
         self._sent: dict[int, tuple[int, list[int]]] = {}   # stamp -> (published at, entry)
         self._started = False
         self.missed_total = 0
-        self.answered_total = 0
 
     def published(self, stamp_ns: int, now_ns: int) -> None:
         """Block ``stamp_ns`` goes out at ``now_ns`` (monotonic)."""
@@ -202,7 +201,6 @@ class AnswerLatency:
         sent_ns, entry = found
         self._started = True
         entry[0] = now_ns - sent_ns
-        self.answered_total += 1
         return True
 
     def values(self) -> dict[str, str]:
