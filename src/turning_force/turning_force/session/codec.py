@@ -434,13 +434,8 @@ def _read(leaves: Sequence[Field], msgtype: str, entries: Sequence[Entry],
         leaf = leaves[index]
         if wanted is not None and leaf.path not in wanted:
             continue
-        if leaf.kind == 'value':
-            table.columns[leaf.path] = view[name].copy() if name else table.columns[leaf.path]
-        elif leaf.kind == 'string':
-            table.columns[leaf.path] = (view[name].copy() if name
-                                        else np.zeros(n, dtype='S1'))
-        elif leaf.kind == 'array':
-            if name:
+        if leaf.kind in ('value', 'string', 'array'):
+            if name:   # else (none of it in the layout) as _empty_table left it
                 table.columns[leaf.path] = view[name].copy()
         elif leaf.kind == 'sequence':
             table.lengths[leaf.path] = np.full(n, count, dtype=np.int64)
