@@ -182,6 +182,7 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
         k = slice(start, min(start + BATCH_BLOCKS, n))
         count = k.stop - k.start
         last = last_ns[k]
+        header = {**_stamp(last), 'header.frame_id': FRAME}   # the block's answers' header
         messages: dict[str, tuple[dict[str, Any], Any]] = {
             '/machine/inputs': ({**_stamp(last), 'program_enable': chain.program_enable[k],
                                  'threading': chain.threading[k],
@@ -193,13 +194,11 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
                                  'phase_u_a': c.phase_u_a[k], 'phase_v_a': c.phase_v_a[k],
                                  'rotor_angle_rad': c.rotor_angle_rad[k],
                                  'feed_rate_mm_min': feed[k]}, None),
-            '/servo/joint_state': ({**_stamp(last), 'header.frame_id': FRAME,
-                                    'name': np.array([b'z']),
+            '/servo/joint_state': ({**header, 'name': np.array([b'z']),
                                     'position': position_m[k, None],
                                     'velocity': feed[k, -1:] / 60000.0,
                                     'effort': plant['force_n'][k, None]}, None),
-            '/sim/cutting_state': ({**_stamp(last), 'header.frame_id': FRAME,
-                                    'force_n': plant['force_n'][k],
+            '/sim/cutting_state': ({**header, 'force_n': plant['force_n'][k],
                                     'depth_of_cut_mm': plant['depth_mm'][k],
                                     'spindle_speed_rpm': plant['spindle_speed_rpm'][k],
                                     'feed_mm_rev': plant['feed_mm_rev'][k],
@@ -207,23 +206,21 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
                                     'specific_cutting_force_n_mm2':
                                         plant['specific_cutting_force_n_mm2'][k],
                                     'override_pct': plant['override_pct'][k]}, None),
-            '/force/estimate': ({**_stamp(last), 'header.frame_id': FRAME,
-                                 'force_n': chain.estimated_force_n[k],
+            '/force/estimate': ({**header, 'force_n': chain.estimated_force_n[k],
                                  'force_rate_n_s': chain.estimated_force_rate_n_s[k],
                                  'current_q_a': chain.current_q_a[k],
                                  'friction_current_a': chain.friction_current_a[k],
                                  'status': chain.estimate_status[k],
                                  'detail': details.column(k)}, None),
             '/control/feed_command': ({
-                **_stamp(last), 'header.frame_id': FRAME,
-                'override_pct': chain.requested_override_pct[k],
+                **header, 'override_pct': chain.requested_override_pct[k],
                 'tracking_error_n': chain.tracking_error_n[k],
                 'sliding_variable': chain.sliding_variable[k],
                 'reference_force_n': chain.reference_n[k],
                 'controller': experiment.controller.controller,
                 'reference_reachable': chain.reference_reachable[k]}, acted[k]),
             '/pmc/feed_override': ({
-                **_stamp(last), 'header.frame_id': FRAME, 'applied_pct': chain.applied_pct[k],
+                **header, 'applied_pct': chain.applied_pct[k],
                 'requested_pct': chain.gate_requested_pct[k], 'pmc_code': chain.pmc_code[k],
                 'pmc_bits': bits[k], 'table': table.name, 'armed': chain.armed[k],
                 'reason': chain.reason[k], 'program_enable': chain.program_enable[k],

@@ -379,20 +379,24 @@ def _pool(jobs: int) -> Any:
     return ProcessPoolExecutor(jobs, mp_context=context, initializer=_load_kernel)
 
 
-def _map_local(func: Callable[..., Any], calls: Sequence[tuple[Any, ...]], jobs: int,
-               done: Callable[[int, Any], None]) -> None:
-    """``func(*call)`` for every call, on ``jobs`` processes (1: this one); ``done(i, result)``
-    as each finishes, in any order."""
+def _map(func: Callable[..., Any], shared: Any, calls: Sequence[tuple[Any, ...]], jobs: int,
+         dask: Any, done: Callable[[int, Any], None]) -> str:
+    """``func(shared, *call)`` for every call, on ``jobs`` processes (1: this one) or, where
+    ``dask`` is given, on its cluster (:func:`_map_dask`); ``done(i, result)`` as each
+    finishes, in any order. Returns where they ran ('this process', '2 processes',
+    'dask tcp://...')."""
+    if dask is not None:
+        return f'dask {_map_dask(dask, func, calls, shared, done)}'
     if jobs <= 1:
         _load_kernel()
         for i, call in enumerate(calls):
-            done(i, func(*call))
-        return
+            done(i, func(shared, *call))
+        return 'this process'
     from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
 
     with _pool(jobs) as pool:
-        futures = {pool.submit(func, *call): i for i, call in enumerate(calls)}
+        futures = {pool.submit(func, shared, *call): i for i, call in enumerate(calls)}
         try:
             for future in as_completed(futures):
                 done(futures[future], future.result())
@@ -401,6 +405,7 @@ def _map_local(func: Callable[..., Any], calls: Sequence[tuple[Any, ...]], jobs:
         finally:
             for future in futures:
                 future.cancel()
+    return f'{jobs} processes'
 
 
 LOCAL_HOSTS = ('127.0.0.1', 'localhost', '::1', '[::1]')
@@ -749,21 +754,14 @@ def sweep(experiment: Experiment | str | Path | None, grid: GridSpec, *,
     chunk = chunk_points or max(1, min(200, math.ceil(share)))
     chunks = [(a, min(a + chunk, n)) for a in range(0, n, chunk)]
     points: list[dict[str, Any] | None] = [None] * n
-    bar = _progress_bar(n, progress, 'pt')
+    with _progress_bar(n, progress, 'pt') as bar:
 
-    def done(i: int, rows: list[dict[str, Any]]) -> None:
-        a, b = chunks[i]
-        points[a:b] = rows
-        bar.update(b - a)
+        def done(i: int, rows: list[dict[str, Any]]) -> None:
+            a, b = chunks[i]
+            points[a:b] = rows
+            bar.update(b - a)
 
-    try:
-        if dask is not None:
-            ran_on = f'dask {_map_dask(dask, _run_chunk, chunks, job, done)}'
-        else:
-            _map_local(_run_chunk, [(job, a, b) for a, b in chunks], workers, done)
-            ran_on = 'this process' if workers <= 1 else f'{workers} processes'
-    finally:
-        bar.close()
+        ran_on = _map(_run_chunk, job, chunks, workers, dask, done)
     extra = REPLAY_COLUMNS if bag else ()
     table = []
     for k, (values, point) in enumerate(zip(itertools.product(*(a.values for a in axes)),
@@ -852,20 +850,13 @@ def replay_sessions(bags: Iterable[str | Path], sets: Sequence[str] = (), *,
                      partial)
     calls = [(str(Path(p).resolve()), p) for p in paths]
     out: list[SessionReplay | None] = [None] * len(paths)
-    bar = _progress_bar(len(paths), progress, 'session')
+    with _progress_bar(len(paths), progress, 'session') as bar:
 
-    def done(i: int, result: SessionReplay) -> None:
-        out[i] = result
-        bar.update(1)
+        def done(i: int, result: SessionReplay) -> None:
+            out[i] = result
+            bar.update(1)
 
-    try:
-        if dask is not None:
-            _map_dask(dask, _replay_bag, calls, job, done)
-        else:
-            _map_local(_replay_bag, [(job, *call) for call in calls],
-                       min(jobs or _cores(), len(paths)), done)
-    finally:
-        bar.close()
+        _map(_replay_bag, job, calls, min(jobs or _cores(), len(paths)), dask, done)
     return [r for r in out if r is not None]
 
 

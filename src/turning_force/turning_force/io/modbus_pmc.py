@@ -120,7 +120,6 @@ class _Link:
         try:
             connected = self.client.connect()
         except Exception as exc:
-            connected = False
             self.client.close()
             raise _Fault(f'cannot connect to {self.config.host}:{self.config.port} '
                          f'({short_repr(str(exc))})') from exc

@@ -123,6 +123,8 @@ def from_tristate(value: int) -> bool | None:
 
 
 def inputs_to_msg(inputs: InputValues, out: MachineInputs | None = None) -> MachineInputs:
+    """The inputs into ``out``: a MachineInputs, or a FeedOverride (which carries the inputs
+    its decision saw in the same fields)."""
     dial = inputs.operator_dial_pct
     msg = MachineInputs() if out is None else out
     msg.program_enable = tristate(inputs.program_enable)

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import math
-from collections import deque
+from collections import defaultdict, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -44,8 +44,9 @@ class Diagnostics:
         self._node = node
         self._period_s = period_s
         self._publisher = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._inputs: dict[str, _Topic] = {}
-        self._outputs: dict[str, _Topic] = {}
+        # By topic; a topic not watched is counted from its first message.
+        self._inputs: defaultdict[str, _Topic] = defaultdict(_Topic)
+        self._outputs: defaultdict[str, _Topic] = defaultdict(_Topic)
         self._errors = 0
         self._warnings: list[str] = []
         self._error_texts: list[str] = []
@@ -66,16 +67,10 @@ class Diagnostics:
         self._inputs[topic] = _Topic(stale_after_s=stale_after_s)
 
     def received(self, topic: str) -> None:
-        entry = self._inputs.get(topic)
-        if entry is None:
-            entry = self._inputs[topic] = _Topic()
-        entry.count += 1
+        self._inputs[topic].count += 1
 
     def published(self, topic: str) -> None:
-        entry = self._outputs.get(topic)
-        if entry is None:
-            entry = self._outputs[topic] = _Topic()
-        entry.count += 1
+        self._outputs[topic].count += 1
 
     def received_count(self, topic: str) -> int:
         """Messages received on ``topic`` so far."""
@@ -178,7 +173,6 @@ class AnswerLatency:
         self._sent: dict[int, tuple[int, list[int]]] = {}   # stamp -> (published at, entry)
         self._started = False
         self.missed_total = 0
-        self.answered_total = 0
 
     def published(self, stamp_ns: int, now_ns: int) -> None:
         """Block ``stamp_ns`` goes out at ``now_ns`` (monotonic)."""
@@ -202,7 +196,6 @@ class AnswerLatency:
         sent_ns, entry = found
         self._started = True
         entry[0] = now_ns - sent_ns
-        self.answered_total += 1
         return True
 
     def values(self) -> dict[str, str]:

@@ -20,12 +20,11 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-import yaml
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from turning_force.core.errors import ConfigError
-from turning_force.core.experiment import build_experiment, parameter_sections
+from turning_force.core.experiment import build_experiment
+from turning_force.core.overlay import read_parameters
 from turning_force.io.pmc_server import PmcSimulation, simulate_pmc
 from turning_force.nodes.force_controller import ForceControllerNode
 from turning_force.nodes.force_estimator import ForceEstimatorNode
@@ -43,12 +42,7 @@ def arms_like_run(args: Sequence[str]) -> bool:
     sections: dict[str, dict[str, object]] = {}
     files = [args[k + 1] for k, arg in enumerate(args[:-1]) if arg == '--params-file']
     for path in files:
-        try:
-            with open(path, encoding='utf-8') as stream:
-                data = yaml.safe_load(stream)
-        except (OSError, yaml.YAMLError) as exc:
-            raise ConfigError(f'{path}: cannot read the parameters file ({exc})') from exc
-        for name, params in parameter_sections(data, path).items():
+        for name, params in read_parameters(path).items():
             sections.setdefault(name, {}).update(params)
     return build_experiment(' + '.join(files) or 'defaults', sections).bridge.armed
 

@@ -82,7 +82,6 @@ class LatheSimNode(Node):
         self._plant = LathePlant(settings, initial_override_pct=self._applied_pct)
         # Plant time 0 is this node's clock at start (0 in lock-step sim time).
         self._t0_ns = 0 if lockstep else self.get_clock().now().nanoseconds
-        self.last_override_stamp_ns = -1
         self._awaited: tuple[int, Future[int]] | None = None
         self._last_ns = -1   # the answer stamp of the last block published
         # One message of each kind, refilled every period (rclpy serialises on publish).
@@ -165,7 +164,6 @@ class LatheSimNode(Node):
         self.diagnostics.received('pmc/feed_override')
         if self._coils is None:   # else the PMC reads its coils at the next step
             self._take_override(msg)
-        self.last_override_stamp_ns = stamp_ns
         if self._awaited is not None and self._awaited[0] == stamp_ns:
             self._awaited[1].set_result(stamp_ns)
             self._awaited = None

@@ -71,8 +71,8 @@ from turning_force.nodes.convert import (
     cut_to_msg,
     estimate_from_msg,
     inputs_from_msg,
+    inputs_to_msg,
     ns_to_stamp,
-    tristate,
 )
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
@@ -545,10 +545,7 @@ class PmcBridgeNode(LifecycleNode):
         msg.armed = written.armed
         msg.reason = int(written.reason)
         msg.detail = written.detail
-        msg.program_enable = tristate(written.inputs.program_enable)
-        msg.threading = tristate(written.inputs.threading)
-        msg.operator_dial_pct = (float('nan') if written.inputs.operator_dial_pct is None
-                                 else float(written.inputs.operator_dial_pct))
+        inputs_to_msg(written.inputs, msg)   # the inputs the decision saw, as machine/inputs
         msg.engaged = written.engaged
         msg.alarm = written.alarm
         msg.stop_request = written.stop_request

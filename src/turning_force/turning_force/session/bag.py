@@ -478,11 +478,6 @@ class SessionWriter:
         if self._settings is not None:
             self.write(self._settings, timestamp_ns, settings_message(self._writer.custom_data))
 
-    @property
-    def queued(self) -> int:
-        """Messages waiting for the writer thread."""
-        return len(self._pending)
-
     def _drain(self) -> None:
         """The writer thread: batches to the file, the flush when due, until closed."""
         write, flush_period_s = self._writer.write, self._flush_period_s

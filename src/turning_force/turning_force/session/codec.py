@@ -434,13 +434,8 @@ def _read(leaves: Sequence[Field], msgtype: str, entries: Sequence[Entry],
         leaf = leaves[index]
         if wanted is not None and leaf.path not in wanted:
             continue
-        if leaf.kind == 'value':
-            table.columns[leaf.path] = view[name].copy() if name else table.columns[leaf.path]
-        elif leaf.kind == 'string':
-            table.columns[leaf.path] = (view[name].copy() if name
-                                        else np.zeros(n, dtype='S1'))
-        elif leaf.kind == 'array':
-            if name:
+        if leaf.kind in ('value', 'string', 'array'):
+            if name:   # else (none of it in the layout) as _empty_table left it
                 table.columns[leaf.path] = view[name].copy()
         elif leaf.kind == 'sequence':
             table.lengths[leaf.path] = np.full(n, count, dtype=np.int64)
@@ -522,7 +517,6 @@ class TableBuilder:
         self._expected = max(expected, 1)
         self._columns: dict[str, np.ndarray[Any, Any]] = {}
         self._filled: dict[str, int] = {}
-        self._lengths: dict[str, IntArray] = {}
 
     def _room(self, path: str, like: np.ndarray[Any, Any], need: int, rows: int) -> None:
         have = self._columns.get(path)
@@ -658,8 +652,8 @@ def encode(store: Typestore, msgtype: str, columns: Mapping[str, Any], count: in
         if not members.size:
             continue
         first = int(members[0])
-        entries = _shape_layout(leaves, first, values, counts, starts, string_lengths)
-        size = 4 + _end(entries, leaves)
+        entries, end = _shape_layout(leaves, first, values, counts, starts, string_lengths)
+        size = 4 + end
         dtype, picked = _structured(leaves, entries, size)
         out = np.zeros(members.size, dtype=dtype)
         raw = out.view(np.uint8).reshape(members.size, size)
@@ -710,8 +704,9 @@ def _group_ids(columns: Sequence[IntArray], count: int) -> IntArray:
 
 def _shape_layout(leaves: Sequence[Field], k: int, values: Mapping[str, Any],
                   counts: Mapping[str, IntArray], starts: Mapping[str, IntArray],
-                  string_lengths: Mapping[str, IntArray]) -> list[Entry]:
-    """The layout of message ``k`` from its strings' lengths and sequences' counts."""
+                  string_lengths: Mapping[str, IntArray]) -> tuple[list[Entry], int]:
+    """The layout of message ``k`` from its strings' lengths and sequences' counts, and its
+    end (as :func:`_walk`)."""
     lengths: list[int] = []
     for leaf in leaves:
         if leaf.kind == 'string':
@@ -723,17 +718,5 @@ def _shape_layout(leaves: Sequence[Field], k: int, values: Mapping[str, Any],
             lengths.append(c)
             lengths += [int(v) + 1 for v in string_lengths[leaf.path][s:s + c]]
     given = iter(lengths)
-    entries, _ = _walk(leaves, lambda pos: next(given), 1 << 62)
-    return entries
+    return _walk(leaves, lambda pos: next(given), 1 << 62)
 
-
-def _end(entries: Sequence[Entry], leaves: Sequence[Field]) -> int:
-    end = 0
-    for index, _, what, offset, count in entries:
-        if what == 'n':
-            end = max(end, offset + 4)
-        elif what == 's':
-            end = max(end, offset + count + 1)
-        else:
-            end = max(end, offset + count * SIZES[leaves[index].base])
-    return end

@@ -485,11 +485,8 @@ def settings_data(messages: Sequence[bytes]) -> tuple[dict[str, str], list[str]]
 
 
 def _repair_note(text: str) -> str:
-    try:
-        repair = json.loads(text)
-        return f'repaired session: {repair["summary"]}'
-    except (ValueError, KeyError, TypeError):
-        return 'repaired session'
+    repair = _json_object(text) or {}
+    return f'repaired session: {repair["summary"]}' if 'summary' in repair else 'repaired session'
 
 
 @dataclass
@@ -739,18 +736,23 @@ class _Decoder:
         del log_times
         for index in np.flatnonzero(np.bincount(channels)).tolist():
             chosen = channels == index if channels.size > 1 else np.ones(1, dtype=bool)
-            channel = scan.channels.get(index)
-            if channel is not None and is_settings(channel.topic):
-                self.settings += [bytes(data[o:o + n]) for o, n in zip(
-                    offsets[chosen].tolist(), sizes[chosen].tolist(), strict=True)]
-                continue
-            found = self._channel(scan, index, final=False)
-            if found is None:
-                if index not in self._channels:   # described later in the file, maybe
-                    self._later += [(index, bytes(data[o:o + n])) for o, n in zip(
-                        offsets[chosen].tolist(), sizes[chosen].tolist(), strict=True)]
-                continue
-            self._decode(found, data, offsets[chosen], sizes[chosen])
+            self._take(scan, index, data, offsets[chosen], sizes[chosen], final=False)
+
+    def _take(self, scan: McapScan, index: int, data: npt.NDArray[np.uint8], offsets: IntArray,
+              sizes: IntArray, final: bool) -> None:
+        """Messages of channel ``index``: the settings kept, the signals' topics decoded, those
+        of a channel not described yet kept for :meth:`finish` (unless ``final``)."""
+        channel = scan.channels.get(index)
+        if channel is not None and is_settings(channel.topic):
+            self.settings += [bytes(data[o:o + n]) for o, n in zip(
+                offsets.tolist(), sizes.tolist(), strict=True)]
+            return
+        found = self._channel(scan, index, final)
+        if found is not None:
+            self._decode(found, data, offsets, sizes)
+        elif index not in self._channels:   # described later in the file, maybe
+            self._later += [(index, bytes(data[o:o + n])) for o, n in zip(
+                offsets.tolist(), sizes.tolist(), strict=True)]
 
     def _decode(self, found: tuple[Typestore, str, str, TableBuilder],
                 data: npt.NDArray[np.uint8], offsets: IntArray, sizes: IntArray) -> None:
@@ -764,17 +766,10 @@ class _Decoder:
     def finish(self, scan: McapScan) -> dict[str, Table]:
         """The tables of the topics read, by relative name (messages of channels the file
         describes only after them, or in its summary, decoded now)."""
-        for index, raw in self._later:
-            channel = scan.channels.get(index)
-            if channel is not None and is_settings(channel.topic):
-                self.settings.append(raw)
-                continue
-            found = self._channel(scan, index, final=True)
-            if found is not None:
-                data = np.frombuffer(raw, dtype=np.uint8)
-                self._decode(found, data, np.zeros(1, dtype=np.int64),
-                             np.array([len(raw)], dtype=np.int64))
-        self._later.clear()
+        later, self._later = self._later, []
+        for index, raw in later:
+            self._take(scan, index, np.frombuffer(raw, dtype=np.uint8),
+                       np.zeros(1, dtype=np.int64), np.array([len(raw)], dtype=np.int64), True)
         tables: dict[str, list[Table]] = {}
         for found in self._channels.values():
             if found is not None and found[3].count:

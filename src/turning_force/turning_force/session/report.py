@@ -310,15 +310,12 @@ def figure(session: Session, metrics: dict[str, float], facts: ReportFacts | Non
                          label='reference out of reach' if k == 0 else None)
     ax_force.set_ylabel('force [N]')
     ax_force.legend(loc='lower right', fontsize=8)
-    ax_force.grid(alpha=0.3)
 
     if session.has_truth:
         ax_depth.plot(*_envelope(t, s['depth_mm']), color='tab:brown')
         ax_feed.plot(*_envelope(t, s['feed_mm_rev']), color='tab:purple')
     ax_depth.set_ylabel('depth of cut [mm]')
     ax_feed.set_ylabel('feed [mm/rev]')
-    for ax in (ax_depth, ax_feed):
-        ax.grid(alpha=0.3)
 
     ax_override.plot(*_envelope(t, s['requested_override_pct']), color='tab:gray', lw=0.7,
                      label='requested (continuous)')
@@ -328,7 +325,8 @@ def figure(session: Session, metrics: dict[str, float], facts: ReportFacts | Non
     ax_override.set_ylabel('override [%]')
     ax_override.set_xlabel('time from the session start [s]')
     ax_override.legend(loc='upper right', fontsize=8)
-    ax_override.grid(alpha=0.3)
+    for ax in (ax_force, ax_depth, ax_feed, ax_override):
+        ax.grid(alpha=0.3)
 
     title = facts.title
     if experiment is not None and experiment.run.paper_figure:

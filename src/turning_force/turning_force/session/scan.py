@@ -63,6 +63,10 @@ ONE_SHOT_BYTES = 1 << 28
 # What a damaged record makes a parser raise: short or garbled fields, bad text, bad compression.
 RECORD_ERRORS = (McapError, ValueError, struct.error, EOFError, OverflowError, MemoryError,
                  zstandard.ZstdError, RuntimeError)
+# The records that describe the messages, by opcode: in a chunk, in the data section and in
+# the summary alike.
+DESCRIPTIONS: dict[int, type[Schema] | type[Channel]] = {Opcode.SCHEMA: Schema,
+                                                         Opcode.CHANNEL: Channel}
 
 
 IntArray = npt.NDArray[np.int64]
@@ -176,10 +180,8 @@ def _chunk_messages(data: bytes) -> tuple[list[Schema | Channel], IntArray, IntA
                 raise McapError(f'a message record at {pos} of {length} bytes')
             starts.append(pos)
             lengths.append(length)
-        elif opcode == Opcode.CHANNEL:
-            out.append(Channel.read(_stream(data[pos + 9:end])))
-        elif opcode == Opcode.SCHEMA:
-            out.append(Schema.read(_stream(data[pos + 9:end])))
+        elif opcode in DESCRIPTIONS:
+            out.append(DESCRIPTIONS[opcode].read(_stream(data[pos + 9:end])))
         elif opcode not in {Opcode.METADATA, Opcode.ATTACHMENT}:
             raise McapError(f'record with opcode {opcode:#04x} at {pos} inside a chunk')
         pos = end
@@ -322,10 +324,8 @@ class _Scanner:
                 if found is None:
                     raise McapError('a record runs past the footer')
                 opcode, body = found
-                if opcode == Opcode.SCHEMA:
-                    self.summary_records.append((Schema.read(_stream(body)), pos))
-                elif opcode == Opcode.CHANNEL:
-                    self.summary_records.append((Channel.read(_stream(body)), pos))
+                if opcode in DESCRIPTIONS:
+                    self.summary_records.append((DESCRIPTIONS[opcode].read(_stream(body)), pos))
                 elif opcode == Opcode.CHUNK_INDEX:
                     index = ChunkIndex.read(_stream(body))
                     if not 8 <= index.chunk_start_offset < start:
@@ -468,8 +468,7 @@ class _Scanner:
                 try:
                     record: Schema | Channel | Message = (
                         Message.read(_stream(body), len(body)) if opcode == Opcode.MESSAGE
-                        else Schema.read(_stream(body)) if opcode == Opcode.SCHEMA
-                        else Channel.read(_stream(body)))
+                        else DESCRIPTIONS[opcode].read(_stream(body)))
                 except RECORD_ERRORS as exc:
                     self.out.damage.append(f'record at byte {pos}: {exc}')
                 else:
