@@ -36,7 +36,7 @@ from turning_force.core.kernel.chain import command_for
 from turning_force.nodes.convert import estimate_from_msg, stamp_to_ns
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import run_nodes
+from turning_force.nodes.spin import STREAM_DEPTH, run_nodes
 from turning_force.nodes.spindle import TOOL_TOPIC, SpindleSpeedInput
 
 __all__ = ['REFERENCE_QOS', 'ForceControllerNode', 'main']
@@ -64,7 +64,7 @@ class ForceControllerNode(Node):
         self._drift = 0
         self.spindle = SpindleSpeedInput(self, self.diagnostics, settings.spindle_speed_stale_s,
                                          settings.spindle_speed_rpm)
-        self._publisher = self.create_publisher(FeedCommand, 'control/feed_command', 10)
+        self._publisher = self.create_publisher(FeedCommand, 'control/feed_command', STREAM_DEPTH)
         self._command = FeedCommand()   # refilled per estimate (rclpy serialises on publish)
         self.create_subscription(ForceEstimate, 'force/estimate', self._on_estimate, 10)
         self.create_subscription(Float64, 'force/reference', self._on_reference, REFERENCE_QOS)

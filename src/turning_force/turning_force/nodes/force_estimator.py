@@ -31,7 +31,7 @@ from turning_force.nodes.convert import (
 )
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import run_nodes, timer_callback
+from turning_force.nodes.spin import STREAM_DEPTH, run_nodes, timer_callback
 
 __all__ = ['ForceEstimatorNode', 'main']
 
@@ -52,7 +52,7 @@ class ForceEstimatorNode(Node):
         self.parameters = SettingsParameters(self, EstimatorSettings, self._reconfigure)
         self.diagnostics = Diagnostics(self)
         self._estimator = ForceEstimator(self.parameters.current)
-        self._publisher = self.create_publisher(ForceEstimate, 'force/estimate', 10)
+        self._publisher = self.create_publisher(ForceEstimate, 'force/estimate', STREAM_DEPTH)
         self._out = ForceEstimate()   # refilled per block (rclpy serialises on publish)
         self.create_subscription(ServoCurrents, 'servo/currents', self._on_currents, 10)
         self._watching = False

@@ -54,7 +54,7 @@ from turning_force.nodes.convert import (
 )
 from turning_force.nodes.diagnostics import AnswerLatency, Diagnostics
 from turning_force.nodes.parameters import SettingsParameters, declare
-from turning_force.nodes.spin import run_nodes, timer_callback
+from turning_force.nodes.spin import STREAM_DEPTH, run_nodes, timer_callback
 from turning_force.nodes.spindle import SPINDLE_SPEED_TOPIC, TOOL_TOPIC
 
 __all__ = ['LatheSimNode', 'main']
@@ -105,16 +105,16 @@ class LatheSimNode(Node):
                                    else f'coils of modbus_tcp {self._coils.where}')
         self._clock_publisher = (self.create_publisher(Clock, '/clock', 10)
                                  if self._publish_clock else None)
-        self._inputs = self.create_publisher(MachineInputs, 'machine/inputs', 10)
+        self._inputs = self.create_publisher(MachineInputs, 'machine/inputs', STREAM_DEPTH)
         self._speed_msg = Float64()
         self._speed = (self.create_publisher(Float64, SPINDLE_SPEED_TOPIC, 10)
                        if settings.spindle_speed_wired else None)
         self._tool_msg = Int32()
         self._tool = (self.create_publisher(Int32, TOOL_TOPIC, 10) if settings.tool_wired
                       else None)
-        self._currents = self.create_publisher(ServoCurrents, 'servo/currents', 10)
-        self._joint = self.create_publisher(JointState, 'servo/joint_state', 10)
-        self._truth = self.create_publisher(CuttingState, 'sim/cutting_state', 10)
+        self._currents = self.create_publisher(ServoCurrents, 'servo/currents', STREAM_DEPTH)
+        self._joint = self.create_publisher(JointState, 'servo/joint_state', STREAM_DEPTH)
+        self._truth = self.create_publisher(CuttingState, 'sim/cutting_state', STREAM_DEPTH)
         self._dynamometer = (Dynamometer(settings.dynamometer_noise_n, settings.seed)
                              if settings.dynamometer else None)
         self._measured = (self.create_publisher(WrenchStamped, 'force/measured', 10)

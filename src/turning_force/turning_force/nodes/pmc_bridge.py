@@ -77,7 +77,7 @@ from turning_force.nodes.convert import (
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.parameters import SettingsParameters, declare
-from turning_force.nodes.spin import NodeTime, run_nodes, timer_callback
+from turning_force.nodes.spin import STREAM_DEPTH, NodeTime, run_nodes, timer_callback
 from turning_force.nodes.spindle import TOOL_TOPIC, SpindleSpeedInput
 
 __all__ = ['BridgeStartError', 'PmcBridgeNode', 'SimulatedPmc', 'main']
@@ -145,7 +145,7 @@ class PmcBridgeNode(LifecycleNode):
         self.diagnostics.watch('control/feed_command', stale_after_s=settings.watchdog_period_s)
         self.diagnostics.set_value('state', 'unconfigured')
         self.diagnostics.add_provider(lambda: {'arming': self.state_text()})
-        self._publisher = self.create_publisher(FeedOverride, 'pmc/feed_override', 10)
+        self._publisher = self.create_publisher(FeedOverride, 'pmc/feed_override', STREAM_DEPTH)
         self._override = FeedOverride()   # refilled per write (rclpy serialises on publish)
         self._cut_publisher = self.create_publisher(CutRecord, 'pmc/cuts', 10)
         self._reference_publisher = self.create_publisher(Float64, 'force/reference',

@@ -30,7 +30,7 @@ from turning_force.core.plant.drive import CurrentBlock
 from turning_force.nodes.convert import block_to_servo_currents, ns_to_stamp
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import run_nodes
+from turning_force.nodes.spin import STREAM_DEPTH, run_nodes
 
 __all__ = ['DaqError', 'NiDaq', 'ServoDaqNode', 'block_message', 'main']
 
@@ -143,7 +143,7 @@ class ServoDaqNode(Node):
         settings = self.parameters.current
         self._converter = DaqConverter(settings)
         self.diagnostics = Diagnostics(self)
-        self._publisher = self.create_publisher(ServoCurrents, 'servo/currents', 10)
+        self._publisher = self.create_publisher(ServoCurrents, 'servo/currents', STREAM_DEPTH)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._daq: NiDaq | None = None

@@ -46,7 +46,7 @@ from turning_force.core.experiment import SETTINGS_OF, RecorderSettings
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import NodeTime, run_nodes, timer_callback
+from turning_force.nodes.spin import STREAM_DEPTH, NodeTime, run_nodes, timer_callback
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
     CUSTOM_PARAMETERS,
@@ -84,7 +84,7 @@ LATCHED_TOPICS = frozenset({'force/reference', SETTINGS_TOPIC})
 def topic_qos(topic: str) -> QoSProfile:
     """The QoS a subscriber to one of :data:`GRAPH_TOPICS` takes: transient-local for the
     latched ones, a queue of 100 for the others (a second of blocks at 10 ms)."""
-    return REFERENCE_QOS if topic in LATCHED_TOPICS else QoSProfile(depth=100)
+    return REFERENCE_QOS if topic in LATCHED_TOPICS else QoSProfile(depth=STREAM_DEPTH)
 
 
 def msgtype(cls: type) -> str:

@@ -28,8 +28,15 @@ from rclpy.signals import SignalHandlerOptions
 from turning_force.core import kernel
 from turning_force.core.errors import ConfigError, TurningForceError
 
-__all__ = ['EXECUTOR_ENV', 'MAX_DOMAIN_ID', 'RT_PRIORITY_ENV', 'NodeTime', 'check_domain_id',
-           'freeze_heap', 'make_executor', 'real_time_priority', 'run_nodes', 'timer_callback']
+# The history of every streaming topic, publishers' and subscribers' alike: a second of blocks at
+# 10 ms. Fast DDS's reliable KEEP_LAST writer drops its oldest sample, acknowledged or not, once
+# `depth` newer ones are out: at 10 a reader in another process (the live view on a busy 2-core
+# PC) that falls 100 ms behind lost messages the recorder got.
+STREAM_DEPTH = 100
+
+__all__ = ['EXECUTOR_ENV', 'MAX_DOMAIN_ID', 'RT_PRIORITY_ENV', 'STREAM_DEPTH', 'NodeTime',
+           'check_domain_id', 'freeze_heap', 'make_executor', 'real_time_priority', 'run_nodes',
+           'timer_callback']
 
 # ``TURNING_FORCE_EXECUTOR=single`` runs ``ros2 run`` nodes on rclpy's SingleThreadedExecutor
 # instead of its EventsExecutor (ten times the message rate here; see ROS2_FROM_PYPI.md).
