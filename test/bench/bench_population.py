@@ -295,6 +295,10 @@ def main() -> None:
     if known:   # the machines the earlier store measured the oracle on
         machines = [m for m in machines if m.index in known]
     results = {i: r for i, r in read_store(args.store).items() if i < args.machines}
+    for index, result in results.items():
+        result.setdefault('oracle', known.get(index))
+        if result['oracle'] is None:
+            del result['oracle']
     where = f'dask {args.dask}' if args.dask else f'{args.jobs} processes'
     print(f'{len(machines)} machines from seed {args.seed} ({len(results)} in the store); band: '
           f'steady <= {BAND_STEADY_N:g} N and ripple <= {BAND_RIPPLE_N:g} N p-p; {where}\n')

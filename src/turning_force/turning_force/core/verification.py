@@ -93,7 +93,7 @@ class Prediction:
         return self.in_band / self.plants
 
     def line(self) -> str:
-        return (f'{self.name:34s} in band on {self.in_band:3d} / {self.plants:<3d} plants; '
+        return (f'{self.name:40s} in band on {self.in_band:3d} / {self.plants:<3d} plants; '
                 f'identified plant: steady {self.steady_n:6.2f} N, mean {self.mean_n:6.2f} N, '
                 f'ripple {self.ripple_n:6.1f} N; worst steady {self.worst_steady_n:7.2f} N')
 
