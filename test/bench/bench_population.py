@@ -15,24 +15,35 @@ laws given the true model): how many the oracle holds in band, how many of those
 holds, and on how many machines the commissioned steady error is within 20 % (or 1 N) of the
 oracle's.
 
+Then issue 15's done-when in one table: the machines the oracle holds in band and how many of
+them commissioning holds (and the fraction of all machines), the regret count (commissioned
+steady within 20 % or 1 N of the oracle's), the machines where commissioning is worse than the
+uncommissioned defaults by more than 1 N steady, and every machine the oracle cannot hold with
+the class of its reason (a friction drift the estimator cannot see, sensor noise, dead time, the
+servo) and the numbers behind it.
+
 Run: ``.venv/bin/python test/bench/bench_population.py [--machines 200] [--seed 15]
-[--jobs 2] [--dask ADDRESS | --dask local] [--oracle]``. On a Dask cluster its workers need
-turning_force and this repository's config/ at the same path; ``local`` starts a LocalCluster
-of ``--jobs`` workers.
+[--jobs 2] [--dask ADDRESS | --dask local] [--oracle] [--store FILE.jsonl]
+[--oracle-from FILE.jsonl]``. ``--store`` appends each machine's result as it is done and
+skips the machines already in it (a long run resumes); ``--oracle-from`` takes the oracle of
+an earlier store of the same seed (it depends on the machine and the laws, not on
+commissioning). On a Dask cluster its workers need turning_force and this repository's
+config/ at the same path; ``local`` starts a LocalCluster of ``--jobs`` workers.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
-from functools import partial
+from collections.abc import Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
-from turning_force.commands.population import Machine, commission, draw, run_job
+from turning_force.commands.population import DRIVE, Machine, commission, draw, run_job
 from turning_force.commands.robustness import PRODUCT
 from turning_force.core import kernel
 
@@ -86,9 +97,11 @@ def true_model(machine: Machine) -> list[str]:
     return sets
 
 
-def evaluate(machine: Machine, oracle: bool = False) -> dict[str, Any]:
+def evaluate(machine: Machine, oracle: bool = False,
+             known: tuple[float, float, int] | None = None) -> dict[str, Any]:
     """(steady, ripple) of each column on ``machine``; under 'chosen', identify's choice and
-    its predicted steady error on the identified plant."""
+    its predicted steady error on the identified plant; under 'oracle' (with ``oracle``) the
+    sweep's best (steady, ripple, index into :data:`ORACLE`), or ``known``, measured before."""
     kernel.load()
     try:
         done = commission(machine, EXPERIMENTS)
@@ -104,7 +117,7 @@ def evaluate(machine: Machine, oracle: bool = False) -> dict[str, Any]:
         'smc true model': [*truth, *SMC],
         'mpc true model': [*truth, *MPC],
     }
-    out: dict[str, Any] = {}
+    out: dict[str, Any] = {'index': machine.index}
     for column, sets in runs.items():
         if sets is None:
             out[column] = (float('nan'), float('nan'))
@@ -114,13 +127,15 @@ def evaluate(machine: Machine, oracle: bool = False) -> dict[str, Any]:
                        m.get('ripple_p2p_n', float('nan')))
     out['chosen'] = ('failed', float('nan')) if done is None else (done.chosen.name,
                                                                    done.chosen.steady_n)
-    if oracle:
-        best = (float('inf'), float('inf'))
-        for point in ORACLE:
+    if known is not None:
+        out['oracle'] = known
+    elif oracle:
+        best = (float('inf'), float('inf'), -1)
+        for k, point in enumerate(ORACLE):
             m = run_job(machine, [*PRODUCT, *truth, *point], EXPERIMENTS)
             result = (m.get('steady_mean_abs_error_n', float('inf')),
-                      m.get('ripple_p2p_n', float('inf')))
-            if (in_band(*result), -result[0]) > (in_band(*best), -best[0]):
+                      m.get('ripple_p2p_n', float('inf')), k)
+            if (in_band(*result[:2]), -result[0]) > (in_band(*best[:2]), -best[0]):
                 best = result
         out['oracle'] = best
     return out
@@ -128,6 +143,133 @@ def evaluate(machine: Machine, oracle: bool = False) -> dict[str, Any]:
 
 def in_band(steady: float, ripple: float) -> bool:
     return steady <= BAND_STEADY_N and ripple <= BAND_RIPPLE_N
+
+
+def read_store(path: Path | None) -> dict[int, dict[str, Any]]:
+    """The results of a ``--store`` file, by machine index (a line cut short is left out)."""
+    out: dict[int, dict[str, Any]] = {}
+    if path is None or not path.exists():
+        return out
+    for line in path.read_text().splitlines():
+        try:
+            result = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        out[int(result['index'])] = result
+    return out
+
+
+def run_all(machines: list[Machine], args: argparse.Namespace,
+            known: dict[int, Any]) -> Iterable[dict[str, Any]]:
+    """Every machine's :func:`evaluate`, as each is done."""
+    if args.dask:
+        from distributed import Client, LocalCluster
+        from distributed import as_completed as dask_completed
+
+        cluster = (LocalCluster(n_workers=args.jobs, threads_per_worker=1, processes=True)
+                   if args.dask == 'local' else None)
+        with Client(cluster if cluster is not None else args.dask) as client:
+            futures = [client.submit(evaluate, m, args.oracle, known.get(m.index), pure=False)
+                       for m in machines]
+            for future in dask_completed(futures):
+                yield future.result()
+        if cluster is not None:
+            cluster.close()
+        return
+    with ProcessPoolExecutor(args.jobs) as pool:
+        jobs = [pool.submit(evaluate, m, args.oracle, known.get(m.index)) for m in machines]
+        for job in as_completed(jobs):
+            yield job.result()
+
+
+def reason(machine: Machine, oracle: tuple[float, float, int]) -> str:
+    """Why the oracle's best is out of band on ``machine``: the class and its numbers."""
+    p = {**machine.plant, **machine.drifted}
+    per_force = DRIVE.current_per_force_a_n
+    noise_n = p['current_noise_a'] / per_force
+    steady, ripple = oracle[:2]
+    dead_ms = p['pmc_dead_time_s'] * 1e3
+    if p['servo_model'] == 'first_order':
+        servo = f'servo tau {p["servo_time_constant_s"]:.2f} s'
+        slow = p['servo_time_constant_s'] >= 0.25
+    else:
+        servo = (f'servo {p["servo_natural_freq_rad_s"]:.1f} rad/s, zeta '
+                 f'{p["servo_damping"]:.2f}')
+        slow = p['servo_natural_freq_rad_s'] < 9.0 or p['servo_damping'] < 0.45
+    numbers = (f'oracle {steady:.2f} N steady, {ripple:.1f} N ripple; dead {dead_ms:.0f} ms, '
+               f'{servo}, noise {noise_n:.1f} N + {p["force_noise_fraction"]:.1%}')
+    if machine.drift.startswith('friction'):
+        factor = p['friction_at_min_feed_a'] / DRIVE.friction_at_min_feed_a
+        bias = ((factor - 1.0) * DRIVE.friction_at_max_feed_a / per_force,
+                (factor - 1.0) * DRIVE.friction_at_min_feed_a / per_force)
+        return (f'friction drift x{factor:.2f}: the estimator keeps the commissioned curve, '
+                f'{bias[0]:.0f}-{bias[1]:.0f} N of bias no law sees; {numbers}')
+    if steady <= BAND_STEADY_N:
+        return f'noise: ripple {ripple:.1f} N p-p > {BAND_RIPPLE_N:g} N at best; {numbers}'
+    if dead_ms >= 100.0:
+        return f'dead time {dead_ms:.0f} ms; {numbers}'
+    if slow:
+        return f'servo; {numbers}'
+    return f'other; {numbers}'
+
+
+def report(machines: list[Machine], results: dict[int, dict[str, Any]], oracle: bool) -> None:
+    """The per-machine table, the columns' summary and the done-when table."""
+    rows = [(m, results[m.index]) for m in machines if m.index in results
+            and (not oracle or 'oracle' in results[m.index])]
+    print('steady error [N] per machine:')
+    print(f'{"machine":>8s} ' + ' '.join(f'{c:>18s}' for c in COLUMNS)
+          + (f' {"oracle":>18s}' if oracle else '') + '   identify chose (predicted steady)')
+    for machine, result in rows:
+        cells = ' '.join(f'{result[c][0]:14.2f} {"in " if in_band(*result[c][:2]) else "out"}'
+                         for c in (*COLUMNS, *(('oracle',) if oracle else ())))
+        chosen, predicted = result['chosen']
+        print(f'{machine.index:8d} {cells}   {chosen} ({predicted:.2f} N)')
+    print(f'\n{"column":20s} {"in band":>10s} {"median steady N":>16s}')
+    for column in COLUMNS:
+        values = [r[column] for _, r in rows]
+        band = sum(in_band(*v) for v in values)
+        steady = [v[0] for v in values if v[0] == v[0]]
+        print(f'{column:20s} {band:4d} / {len(values):<4d} '
+              f'{statistics.median(steady) if steady else float("nan"):16.2f}')
+    n = len(rows)
+    worse = [(m, r) for m, r in rows
+             if not r['commissioned'][0] <= r['defaults'][0] + 1.0]
+    print(f'\ndone-when on {n} machines:')
+    if oracle:
+        holdable = [(m, r) for m, r in rows if in_band(*r['oracle'][:2])]
+        held = sum(in_band(*r['commissioned']) for _, r in holdable)
+        regret = [(m, r) for m, r in rows if not r['commissioned'][0] <= max(
+            1.2 * r['oracle'][0], r['oracle'][0] + 1.0)]
+        print(f'  oracle ({len(ORACLE)} points, true model) holds in band   '
+              f'{len(holdable):4d} / {n}')
+        print(f'  commissioned in band, of those                   {held:4d} / {len(holdable)}'
+              f'  ({held / max(len(holdable), 1):.1%}; target 95 %)')
+        print(f'  commissioned in band, of all                     '
+              f'{sum(in_band(*r["commissioned"]) for _, r in rows):4d} / {n}')
+        print(f"  within 20 % or 1 N of the oracle's steady        {n - len(regret):4d} / {n}")
+    print(f'  worse than the defaults by > 1 N steady          {len(worse):4d} / {n}')
+    for m, r in worse:
+        print(f'    #{m.index}: commissioned {r["commissioned"][0]:.2f} N ({r["chosen"][0]}), '
+              f'defaults {r["defaults"][0]:.2f} N')
+    if oracle:
+        print('  regret over 20 % and 1 N:')
+        for m, r in regret:
+            print(f'    #{m.index}: commissioned {r["commissioned"][0]:.2f} N ({r["chosen"][0]}, '
+                  f'predicted {r["chosen"][1]:.2f} N), oracle {r["oracle"][0]:.2f} N '
+                  f'({" ".join(ORACLE[r["oracle"][2]]).replace("force_controller.", "")})')
+        print('  the oracle out of band, and why:')
+        for m, r in rows:
+            if not in_band(*r['oracle'][:2]):
+                print(f'    #{m.index}: {reason(m, r["oracle"])}; commissioned '
+                      f'{r["commissioned"][0]:.2f} N')
+    worst = sorted(rows, key=lambda mr: -(mr[1]['commissioned'][0]
+                                          if mr[1]['commissioned'][0] == mr[1]['commissioned'][0]
+                                          else 1e9))[:10]
+    print('\nthe ten worst after commissioning:')
+    for machine, result in worst:
+        steady, ripple = result['commissioned']
+        print(f'  {steady:8.2f} N steady, {ripple:7.1f} N ripple: {machine.describe()}')
 
 
 def main() -> None:
@@ -138,60 +280,40 @@ def main() -> None:
     parser.add_argument('--dask', help="a Dask scheduler's address, or local")
     parser.add_argument('--oracle', action='store_true',
                         help=f'also the best of a {len(ORACLE)}-point sweep on each true machine')
+    parser.add_argument('--store', type=Path, help="append each machine's result (JSON lines); "
+                        'machines already in it are not run again')
+    parser.add_argument('--oracle-from', type=Path,
+                        help="a --store file of the same seed: its oracle's results are reused "
+                        '(on its machines only)')
+    parser.add_argument('--report-only', action='store_true',
+                        help="print the store's machines; run none")
     args = parser.parse_args()
-    kernel.load()
+    known = {i: tuple(r['oracle']) for i, r in read_store(args.oracle_from).items()
+             if 'oracle' in r}
+    args.oracle = args.oracle or bool(known)
     machines = draw(args.machines, args.seed)
+    if known:   # the machines the earlier store measured the oracle on
+        machines = [m for m in machines if m.index in known]
+    results = {i: r for i, r in read_store(args.store).items() if i < args.machines}
+    for index, result in results.items():
+        result.setdefault('oracle', known.get(index))
+        if result['oracle'] is None:
+            del result['oracle']
     where = f'dask {args.dask}' if args.dask else f'{args.jobs} processes'
-    print(f'{args.machines} machines from seed {args.seed}; band: steady <= {BAND_STEADY_N:g} N '
-          f'and ripple <= {BAND_RIPPLE_N:g} N p-p; {where}\n')
+    print(f'{len(machines)} machines from seed {args.seed} ({len(results)} in the store); band: '
+          f'steady <= {BAND_STEADY_N:g} N and ripple <= {BAND_RIPPLE_N:g} N p-p; {where}\n')
+    todo = [] if args.report_only else [m for m in machines if m.index not in results]
     start = time.perf_counter()
-    if args.dask:
-        from distributed import Client, LocalCluster
-
-        cluster = (LocalCluster(n_workers=args.jobs, threads_per_worker=1, processes=True)
-                   if args.dask == 'local' else None)
-        with Client(cluster if cluster is not None else args.dask) as client:
-            results = client.gather(client.map(partial(evaluate, oracle=args.oracle), machines,
-                                               pure=False))
-        if cluster is not None:
-            cluster.close()
-    else:
-        with ProcessPoolExecutor(args.jobs) as pool:
-            results = list(pool.map(partial(evaluate, oracle=args.oracle), machines))
+    if todo:
+        kernel.load()
+        with open(args.store, 'a') if args.store else open('/dev/null', 'w') as store:
+            for result in run_all(todo, args, known):
+                results[result['index']] = result
+                store.write(json.dumps(result) + '\n')
+                store.flush()
     took = time.perf_counter() - start
-    print('steady error [N] per machine:')
-    print(f'{"machine":>8s} ' + ' '.join(f'{c:>18s}' for c in COLUMNS)
-          + '   identify chose (predicted steady)')
-    for machine, result in zip(machines, results, strict=True):
-        cells = ' '.join(f'{result[c][0]:14.2f} {"in " if in_band(*result[c]) else "out"}'
-                         for c in COLUMNS)
-        chosen, predicted = result['chosen']
-        print(f'{machine.index:8d} {cells}   {chosen} ({predicted:.2f} N)')
-    print(f'\n{"column":20s} {"in band":>10s} {"median steady N":>16s}')
-    for column in COLUMNS:
-        values = [r[column] for r in results]
-        band = sum(in_band(*v) for v in values)
-        steady = [v[0] for v in values if v[0] == v[0]]
-        print(f'{column:20s} {band:4d} / {len(values):<4d} '
-              f'{statistics.median(steady) if steady else float("nan"):16.2f}')
-    if args.oracle:
-        holdable = [r for r in results if in_band(*r['oracle'])]
-        held = sum(in_band(*r['commissioned']) for r in holdable)
-        regret = [r for r in results if r['commissioned'][0] > max(1.2 * r['oracle'][0],
-                                                                   r['oracle'][0] + 1.0)]
-        print(f'\noracle ({len(ORACLE)} points a machine, the laws given the true model): in band '
-              f'on {len(holdable)} / {len(results)}; of those, commissioning holds {held}; '
-              f"commissioned steady within 20 % or 1 N of the oracle's on "
-              f'{len(results) - len(regret)} / {len(results)}')
-    worst = sorted(zip(machines, results, strict=True),
-                   key=lambda mr: -(mr[1]['commissioned'][0]
-                                    if mr[1]['commissioned'][0] == mr[1]['commissioned'][0]
-                                    else 1e9))[:10]
-    print('\nthe ten worst after commissioning:')
-    for machine, result in worst:
-        steady, ripple = result['commissioned']
-        print(f'  {steady:8.2f} N steady, {ripple:7.1f} N ripple: {machine.describe()}')
-    print(f'\n{took:.0f} s for {args.machines} machines')
+    report(machines, results, args.oracle)
+    print(f'\n{took:.0f} s for {len(todo)} machines run, {len(results)} reported')
 
 
 if __name__ == '__main__':

@@ -63,8 +63,10 @@ def test_the_commissioning_flow_runs_on_a_machine(experiments_dir):
     assert any(s.startswith('force_estimator.kalman_force_noise_n=') for s in done.identified)
     # The verification ran every candidate and chose one holding no fewer plants than the
     # defaults; its settings are the identified ones and the law's.
-    names = {p.name for p in done.predictions}
-    assert {'smc', 'mpc', 'pi', 'defaults'} <= names
+    laws = {next((a for a in p.sets if a.startswith('force_controller.controller=')), 'defaults')
+            for p in done.predictions}
+    assert laws == {'force_controller.controller=smc', 'force_controller.controller=mpc',
+                    'force_controller.controller=pi', 'defaults'}
     defaults = next(p for p in done.predictions if p.name == 'defaults')
     assert done.chosen.in_band >= defaults.in_band
     assert done.chosen.name == 'defaults' or done.chosen.sets[:len(done.identified)] == \

@@ -657,8 +657,9 @@ def _identify(args: argparse.Namespace) -> int:
         for prediction in predictions:
             print(f'  {prediction.line()}')
         print(f'chosen: {chosen.name}'
-              + (' (no candidate holds more plants than the uncommissioned defaults: none of the'
-                 ' identified settings is written)' if chosen.name == 'defaults' else ''))
+              + (' (no candidate holds as many plants as the uncommissioned defaults, within 1 N'
+                 ' of them on the identified plant, and nearer the band: none of the identified'
+                 ' settings is written)' if chosen.name == 'defaults' else ''))
     servo = ident.servo
     header = [
         f'turning-force identify {" ".join(map(str, args.bags))}',

@@ -22,7 +22,8 @@ What is measured, and from what:
    with the residual variance floored at the feed measurement's resolution: a fit already at
    the resolution cannot be bettered by more parameters, so the simpler model is kept.
 3. Friction (Eq. 25), from the air move: ``i_q - offset`` against ``v_a`` at every sample whose
-   feed is inside the range the staircase held, linear least squares.
+   feed is inside the range the staircase held, linear least squares; the curve's end (beyond
+   which it is held, as the estimator holds it) fitted with it.
 4. Process gain, Kienzle's cutting exponent ``g`` and ``tau_c``, from the cut: the force from
    the currents (the recorded current map, the friction just fitted) against the measured feed
    through Eq. 1 with ``F = K_s d f^g``, discretised exactly as the DAQ samples it, with the
@@ -680,7 +681,23 @@ def _identify_friction(recordings: Sequence[Recording], segments: Sequence[_Segm
     # carried on, where the vertex at the slowest level would have let friction ramp to zero.
     creep = CREEP_FRACTION * min(rec.programmed_feed_rate_mm_min for rec in recordings)
     v_min = min(v_min, creep)
-    theta, residual, cov = _linear_fit(np.column_stack([(v - v_min) ** 2, np.ones_like(v)]), i)
+    # The curve's end: the estimator holds Eq. 25 at its end value beyond the fastest feed, and
+    # a drive whose friction levels off inside the staircase's range (a lathe calibrated to
+    # 300 mm/min, a spindle whose 150 % is 400) is that curve with an end below the fastest
+    # level. The end is fitted with the curve (least squares over ends from half the fastest
+    # level up; at equal residuals the fastest): a parabola through a flat tail would be off
+    # by a few newtons at the feeds the job runs.
+    fit = None
+    for end in np.linspace(v_max, 0.5 * v_max, 26):
+        if end <= v_min:
+            continue
+        trial = _linear_fit(np.column_stack([(np.minimum(v, end) - v_min) ** 2,
+                                             np.ones_like(v)]), i)
+        if fit is None or float(np.dot(trial[1], trial[1])) < 0.999 * float(
+                np.dot(fit[1][1], fit[1][1])):
+            fit = (float(end), trial)
+    assert fit is not None
+    v_max, (theta, residual, cov) = fit
     span2 = (v_max - v_min) ** 2
     at_max = float(theta[0] * span2 + theta[1])
     var_max = span2 * span2 * cov[0, 0] + cov[1, 1] + 2.0 * span2 * cov[0, 1]
