@@ -245,8 +245,9 @@ def _eligible(dp: np.ndarray, m: int) -> bool:
 
 
 @compiled
-def _level(dp: np.ndarray, ds: np.ndarray, m: int, n_eff: float, out: np.ndarray) -> None:
-    """The level test on member m into ``out``: cause (NONE where neither a gain nor an offset
+def _level(dp: np.ndarray, ds: np.ndarray, m: int, n_eff: float
+           ) -> tuple[float, float, float, float, float, float]:
+    """The level test on member m: cause (NONE where neither a gain nor an offset
     explains the force better than the identified model), size, its standard deviation, the
     ratio statistic, and the other one's reading and its standard deviation (0: none) where
     the window cannot tell a gain from an offset (their own ratio statistic below the
@@ -255,9 +256,9 @@ def _level(dp: np.ndarray, ds: np.ndarray, m: int, n_eff: float, out: np.ndarray
     at = DS_MODELS + m * S_FIELDS
     s1, sf, sff = ds[DS_S1], ds[DS_SF], ds[DS_SFF]
     sy, syy, syf = ds[at + SY], ds[at + SYY], ds[at + SYF]
-    out[0] = NONE
+    nothing = (float(NONE), 0.0, 0.0, 0.0, 0.0, 0.0)
     if not syy > 0.0:
-        return
+        return nothing
     z = dp[D_SIGMAS]
     k_hat = syf / syy
     k_id = pymin(pymax(k_hat, dp[D_K_LO]), dp[D_K_HI])
@@ -274,18 +275,17 @@ def _level(dp: np.ndarray, ds: np.ndarray, m: int, n_eff: float, out: np.ndarray
     friction = (dp[D_FRICTION] > 0.0 and abs(offset) > z * sigma_c
                 and abs(offset) <= dp[D_FRICTION_MAX] * dp[D_FRICTION])
     if not (gain or friction):
-        return
-    out[3] = n_eff * math.log(sse_id / pymin(sse_gain, sse_offset))
+        return nothing
+    statistic = n_eff * math.log(sse_id / pymin(sse_gain, sse_offset))
     gain_size, friction_size = k_hat / k_id - 1.0, offset / dp[D_FRICTION] if friction else 0.0
     friction_std = sigma_c / dp[D_FRICTION] if friction else 0.0
     apart = n_eff * abs(math.log(sse_gain / sse_offset)) > z * z
     first_friction = friction and (sse_offset < sse_gain or not gain)
     if first_friction:
-        out[0], out[1], out[2] = FRICTION, friction_size, friction_std
-        out[4], out[5] = (gain_size, sigma_k) if gain and not apart else (0.0, 0.0)
-    else:
-        out[0], out[1], out[2] = GAIN, gain_size, sigma_k
-        out[4], out[5] = (friction_size, friction_std) if friction and not apart else (0.0, 0.0)
+        alt, alt_std = (gain_size, sigma_k) if gain and not apart else (0.0, 0.0)
+        return float(FRICTION), friction_size, friction_std, statistic, alt, alt_std
+    alt, alt_std = (friction_size, friction_std) if friction and not apart else (0.0, 0.0)
+    return float(GAIN), gain_size, sigma_k, statistic, alt, alt_std
 
 
 @compiled
@@ -342,8 +342,8 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
         # half the bank's step either way
         std = 0.5 * h if cause == DEAD_TIME else 0.5 * (SERVO_RATIO - 1.0) * size
     else:
-        level = np.zeros(6)   # on the identified member: no lag drift found
-        _level(dp, ds, 0, _effective(ds, 0), level)
+        # on the identified member: no lag drift found
+        level = _level(dp, ds, 0, _effective(ds, 0))
         if level[0] != NONE and level[3] > threshold:
             cause, size, std, alt = int(level[0]), level[1], level[2], level[4]
             if alt != 0.0 and int(ds[DS_CAUSE]) == GAIN + FRICTION - cause:
