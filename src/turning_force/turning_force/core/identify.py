@@ -687,15 +687,15 @@ def _identify_friction(recordings: Sequence[Recording], segments: Sequence[_Segm
     # level. The end is fitted with the curve (least squares over ends from half the fastest
     # level up; at equal residuals the fastest): a parabola through a flat tail would be off
     # by a few newtons at the feeds the job runs.
-    fit = None
+    fit, best_rss = None, math.inf
     for end in np.linspace(v_max, 0.5 * v_max, 26):
         if end <= v_min:
             continue
         trial = _linear_fit(np.column_stack([(np.minimum(v, end) - v_min) ** 2,
                                              np.ones_like(v)]), i)
-        if fit is None or float(np.dot(trial[1], trial[1])) < 0.999 * float(
-                np.dot(fit[1][1], fit[1][1])):
-            fit = (float(end), trial)
+        rss = float(np.dot(trial[1], trial[1]))
+        if fit is None or rss < 0.999 * best_rss:
+            fit, best_rss = (float(end), trial), rss
     assert fit is not None
     v_max, (theta, residual, cov) = fit
     span2 = (v_max - v_min) ** 2
@@ -751,14 +751,16 @@ def _identify_process(recordings: Sequence[Recording], segments: Sequence[_Segme
         windows.append((rec, (a, b), np.maximum(feed, 0.0), force, depth))
     dt = recordings[0].sample_period_s
     n_windows = len(windows)
-    scale = float(np.median(np.concatenate([w[2] for w in windows]))) or 1.0
-    # Eq. 25's basis: the curve at its slowest feed (1 A flat) and its rise to the fastest.
+    feeds = np.concatenate([w[2] for w in windows])
+    scale = float(np.median(feeds)) or 1.0
+    # Eq. 25's basis, with a prior only: the curve at its slowest feed (1 A flat) and its rise
+    # to the fastest.
     span = friction.max_feed_mm_min - friction.min_feed_mm_min
     per_force = recordings[0].current_map.per_force_a_n
-    basis = np.column_stack([
-        replace(friction, a_a_per_mm_min2=a, b_a=b).current_a(
-            np.concatenate([w[2] for w in windows])) / per_force
-        for a, b in ((0.0, 1.0), (1.0 / span ** 2, 0.0))])[:, :2 if prior else 0]
+    basis = (np.column_stack([
+        replace(friction, a_a_per_mm_min2=a, b_a=b).current_a(feeds) / per_force
+        for a, b in ((0.0, 1.0), (1.0 / span ** 2, 0.0))]) if prior
+        else np.empty((feeds.size, 0)))
 
     def design(tau_c: float, g: float) -> FloatArray:
         """The columns the model is linear in: the lagged feed^g, each window's start."""
