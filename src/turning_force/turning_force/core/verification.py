@@ -185,9 +185,10 @@ def _cut(job: Experiment, machine: Sequence[str], sets: Sequence[str]
 
 
 def _tuned(job: Experiment, identified: Sequence[str], nominal: Sequence[str]
-           ) -> dict[str, tuple[str, ...] | None]:
+           ) -> dict[str, tuple[tuple[str, ...] | None, tuple[float, float, float]]]:
     """The first stage: every candidate with each Kalman noise of :data:`KALMAN_SCALES` on the
-    identified plant; the best :data:`PER_LAW` of each law, and the defaults."""
+    identified plant; the best :data:`PER_LAW` of each law, and the defaults, each with its
+    cut on the identified plant (:func:`_cut`)."""
     kalman = next((float(a.split('=', 1)[1]) for a in identified if a.startswith(KALMAN + '=')),
                   None)
     grid: dict[str, tuple[str, ...]] = {}
@@ -197,15 +198,13 @@ def _tuned(job: Experiment, identified: Sequence[str], nominal: Sequence[str]
         for scale in KALMAN_SCALES if kalman is not None else (1.0,):
             tail = () if kalman is None or scale == 1.0 else (f'{KALMAN}={kalman * scale!r}',)
             grid[name + ('' if scale == 1.0 else f', Kalman x{scale:g}')] = (*extra, *tail)
-    scores = {}
-    for name, extra in grid.items():
-        steady, _, ripple = _cut(job, nominal, (*identified, *extra))
-        scores[name] = cost(steady, ripple)
-    chosen: dict[str, tuple[str, ...] | None] = {}
+    cuts = {name: _cut(job, nominal, (*identified, *extra)) for name, extra in grid.items()}
+    scores = {name: cost(steady, ripple) for name, (steady, _, ripple) in cuts.items()}
+    chosen: dict[str, tuple[tuple[str, ...] | None, tuple[float, float, float]]] = {}
     for law in dict.fromkeys(_law(extra) for extra in grid.values()):
         ranked = sorted((n for n in grid if _law(grid[n]) == law), key=lambda n: scores[n])
-        chosen.update({name: grid[name] for name in ranked[:PER_LAW]})
-    chosen['defaults'] = None
+        chosen.update({name: (grid[name], cuts[name]) for name in ranked[:PER_LAW]})
+    chosen['defaults'] = (None, _cut(job, nominal, ()))
     return chosen
 
 
@@ -221,9 +220,10 @@ def verify(job: Experiment, ident: Identification, identified: Sequence[str],
         for drawn in draw_plants(ident, plants, seed)]
     machines = [[*sets, f'lathe_sim.seed={seed + k + 1}'] for k, sets in enumerate(machines)]
     predictions = []
-    for name, extra in _tuned(job, identified, machines[0]).items():
+    for name, (extra, nominal) in _tuned(job, identified, machines[0]).items():
         sets = () if extra is None else (*identified, *extra)
-        results = [_cut(job, machine, sets) for machine in machines]
+        # the identified plant's cut from the first stage, the drawn plants' now
+        results = [nominal, *(_cut(job, machine, sets) for machine in machines[1:])]
         steady = [r[0] for r in results]
         costs = [cost(s, r) for s, _, r in results]
         in_band = sum(s <= BAND_STEADY_N and r <= BAND_RIPPLE_N for s, _, r in results)
