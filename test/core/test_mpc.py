@@ -1,7 +1,8 @@
 """The predictive law over the override levels (core/control/laws/mpc.py), against analysis: on
 a plant that is its own model it holds the mean force on the reference between two levels,
 through a dead time and with a cutting exponent; the switching penalty trades changes of level
-for error; and it does not wind up with the tool out of the cut."""
+for error; it does not wind up with the tool out of the cut; and it follows a taper's steadily
+rising gain without the lag a held gain leaves, while a depth step is no trend."""
 
 from __future__ import annotations
 
@@ -17,11 +18,13 @@ PERIOD_S = 0.01
 SERVO_S, TAU_C_S = 0.17, 0.05
 
 
-def closed_loop(periods: int, gain: float, exponent: float = 1.0, dead_time_s: float = 0.0,
-                air: range = range(0), **changes: float) -> tuple[np.ndarray, np.ndarray]:
+def closed_loop(periods: int, gain: float | np.ndarray, exponent: float = 1.0,
+                dead_time_s: float = 0.0, air: range = range(0), **changes: float
+                ) -> tuple[np.ndarray, np.ndarray]:
     """The law on a noise-free plant that is exactly its model: PMC dead time, the first-order
-    servo and the process lag at the control period, F = gain z^exponent (0 in ``air``).
-    Returns the forces and the levels sent."""
+    servo and the process lag at the control period, F = gain z^exponent (0 in ``air``; the
+    gain one number, or one per period). Returns the forces and the levels sent."""
+    gains = np.broadcast_to(np.asarray(gain, dtype=float), (periods,))
     settings = ControllerSettings(controller='mpc', model_dead_time_s=dead_time_s,
                                   model_cutting_exponent=exponent, initial_override_pct=50.0,
                                   quantiser='nearest', **changes)
@@ -31,7 +34,7 @@ def closed_loop(periods: int, gain: float, exponent: float = 1.0, dead_time_s: f
     queue = [50.0] * round(dead_time_s / PERIOD_S)
     forces, levels = np.empty(periods), np.empty(periods)
     for k in range(periods):
-        forces[k] = 0.0 if k in air else gain * x[-1] ** exponent
+        forces[k] = 0.0 if k in air else gains[k] * x[-1] ** exponent
         levels[k] = law.update(float(forces[k]), 0.0).override_pct
         queue.append(levels[k])
         x = phi @ x + gamma * queue.pop(0)
@@ -70,6 +73,43 @@ def test_no_windup_with_the_tool_out_of_the_cut():
     forces, levels = closed_loop(700, 9.68, air=range(300, 500))
     assert levels[490:500].max() <= 60.0
     assert forces[500:].max() < 520.0
+
+
+# A taper: the gain rises 10 % of its first value a second (a depth from 1 to 2 mm over 10 s),
+# behind 100 ms of dead time. Held as last learned, the gain the law predicts with is late by the
+# learning's lag ((1 - a) / a = 4.5 periods), the dead time (10), one period and the few periods
+# after it that the first move is chosen for (the held tail takes the rest of the horizon):
+# about 0.19 s, so the force runs about 500 N x 0.1 / 1.6 x 0.19 s = 6 N above the reference
+# at 6 s. With the trend carried over that lead, the mean force between two levels is the
+# reference again, within 1.5 N: the two-level test's 0.55 N, the trend's own noise left out of
+# it (sqrt(b / 2) = 7 % of the 6 N on this ramp, whose innovations are all alike), the trend
+# still to learn (it starts once the gain has settled after the first cut: a few % of 6 N at 4
+# s) and a period's timing of the learned gain (0.3 N).
+def test_a_taper_s_rising_gain_leaves_no_lag_with_the_trend():
+    periods = 800
+    gain = 9.68 * (1.0 + 0.1 * np.arange(periods) * PERIOD_S)
+    held, _ = closed_loop(periods, gain, dead_time_s=0.1, mpc_switch_penalty=0.0,
+                          mpc_trend_time_constant_s=0.0)
+    carried, _ = closed_loop(periods, gain, dead_time_s=0.1, mpc_switch_penalty=0.0)
+    window = slice(400, 800)
+    assert 3.0 < held[window].mean() - 500.0 < 10.0
+    assert abs(carried[window].mean() - 500.0) < 1.5
+
+
+# A depth step (the gain x1.5 at 3 s) is a jump, not a trend: the gate keeps the few periods in
+# which the learned gain moves to the new depth out of the trend, and the law settles on the
+# reference as it does with no trend at all (within the two-level test's 0.55 N), with no
+# lasting undershoot: a trend learned from the step would carry it over 0.3 s, 50 % of the gain
+# for the first periods.
+def test_a_depth_step_is_no_trend():
+    periods = 700
+    gain = np.where(np.arange(periods) < 300, 9.68, 1.5 * 9.68)
+    held, _ = closed_loop(periods, gain, dead_time_s=0.1, mpc_switch_penalty=0.0,
+                          mpc_trend_time_constant_s=0.0)
+    carried, _ = closed_loop(periods, gain, dead_time_s=0.1, mpc_switch_penalty=0.0)
+    assert abs(carried[-200:].mean() - 500.0) < 0.55
+    assert carried[300:].min() > held[300:].min() - 5.0
+    assert np.abs(carried[400:] - held[400:]).mean() < 2.0
 
 
 def test_on_park_fig8_it_holds_the_band_with_fewer_changes_than_the_sliding_mode_law(fig8):

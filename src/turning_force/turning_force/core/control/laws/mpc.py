@@ -27,6 +27,22 @@ each period for the level nearest the reference and miss the average the levels 
 them give. ``z`` is linear in ``u`` and ``v``, so ``v`` has a closed form (least squares,
 clipped to the table); the law sends the ``u`` of least ``J``.
 
+A cut whose depth changes along the part (a taper, a contour) changes ``k`` steadily, and a
+``k`` held at its last learned value over the dead time and the horizon leaves the force a
+steady error behind it: ``k``'s rate times the time from the learning to the middle of the
+horizon (on a 1 -> 2.5 mm taper over 12 s behind 94 ms of dead time, 5-7 N). The law therefore
+learns ``k``'s trend ``r`` per period, smoothed over ``mpc_trend_time_constant_s``, and predicts
+``k_j = k + r (l + D + 1 + j)`` for the ``j``-th period of the horizon, ``l = (1 - a) / a`` the
+lag of the learning's smoothing ``a`` on a ramp: ``z_ref`` and ``w`` are taken per period. A
+depth step (or the cut's start) is not a trend: an innovation ``F / z^g - k`` past 3 standard
+deviations of the innovations' own (their variance tracked over the trend's time constant, an
+innovation counted at most as four times it) is a jump, and ``r`` learns only once the innovations
+have stayed inside that gate for three of the learning's time constants, ``k`` settled on the
+new level: its convergence to a new depth is not taken for a trend. With the trend's time
+constant 0 the law holds ``k`` over the horizon (``r = 0``). The trend carried is ``r`` less
+its own noise (one standard deviation, towards 0): on a cut at one depth ``r`` is noise, and the
+lead of 10 to 30 periods would carry it into every level.
+
 Being a model of the feed, not an integrator, the law holds no windup: with the tool out of the
 cut it asks for the level that would give the reference at the ``k`` last learned.
 """
@@ -72,6 +88,10 @@ class Settings(ControllerBase):
     mpc_gain_time_constant_s: float = setting(0.05, 'Smoothing of the process gain k = F / z^g '
                                               'learned while cutting', 's', low=1e-3,
                                               high=10.0)
+    mpc_trend_time_constant_s: float = setting(
+        1.0, "Smoothing of the process gain's trend (a taper, a contour), which the law carries "
+        'over the dead time and the horizon; 0: the gain is held as last learned', 's', low=0.0,
+        high=60.0)
 
     def check(self) -> None:
         super().check()
@@ -81,13 +101,20 @@ class Settings(ControllerBase):
 
 
 # Parameters (from C_LAW): exponent g, rho, the gain's weight, its first value, the engaged
-# fraction, dead time D and horizon H [periods], the model's order, phi (3 x 3) and gamma (3)
-# at the period, how many levels, the levels.
+# fraction, dead time D and horizon H [periods], the lowest and highest level, the model's
+# order, the trend's weight (0: none), the calm periods it waits for after a jump, phi (3 x 3) and gamma (3) at the period, how many levels,
+# the levels.
 (P_EXPONENT, P_PENALTY, P_WEIGHT, P_GAIN0, P_ENGAGED, P_DEAD, P_HORIZON, P_LOW, P_HIGH,
- P_NX) = range(C_LAW, C_LAW + 10)
-P_PHI, P_GAMMA, P_COUNT, P_LEVELS = C_LAW + 10, C_LAW + 19, C_LAW + 22, C_LAW + 23
-# State (from CS_LAW): k, the model's x (3), the queue's next place; the queue (D levels).
-S_GAIN, S_X, S_QIDX, S_QUEUE = CS_LAW, CS_LAW + 1, CS_LAW + 4, CS_LAW + 5
+ P_NX, P_TREND, P_CALM) = range(C_LAW, C_LAW + 12)
+P_PHI, P_GAMMA, P_COUNT, P_LEVELS = C_LAW + 12, C_LAW + 21, C_LAW + 24, C_LAW + 25
+# State (from CS_LAW): k, the model's x (3), the queue's next place, k's trend per period and
+# the variance of its innovations, the periods since the last jump; the queue (D levels).
+S_GAIN, S_X, S_QIDX, S_TREND, S_SPREAD, S_CALM, S_QUEUE = (
+    CS_LAW, CS_LAW + 1, CS_LAW + 4, CS_LAW + 5, CS_LAW + 6, CS_LAW + 7, CS_LAW + 8)
+# Innovations past this many standard deviations are a jump (a depth step), not a trend.
+TREND_GATE = 3.0
+TREND_SIGNIFICANCE = 1.0   # the trend's own noise, in standard deviations, left out of it
+SPREAD0 = 0.01   # the innovations' first standard deviation, of k
 
 
 def fill(settings: ControllerBase) -> tuple[Sequence[float], int]:
@@ -112,19 +139,23 @@ def fill(settings: ControllerBase) -> tuple[Sequence[float], int]:
     own = [c.model_cutting_exponent, c.mpc_switch_penalty,
            1.0 - math.exp(-period / c.mpc_gain_time_constant_s), gain0,
            predictor.ENGAGED_FRACTION, dead, max(1, round(c.mpc_horizon_s / period)),
-           table.min_pct, table.max_pct, nx, *phi_flat,
-           *gamma_flat, levels.size, *levels]
-    return own, 5 + dead
+           table.min_pct, table.max_pct, nx,
+           (1.0 - math.exp(-period / c.mpc_trend_time_constant_s)
+            if c.mpc_trend_time_constant_s > 0.0 else 0.0),
+           math.ceil(3.0 * c.mpc_gain_time_constant_s / period), *phi_flat, *gamma_flat, levels.size, *levels]
+    return own, 8 + dead
 
 
 @compiled
 def reset(cp: np.ndarray, cs: np.ndarray) -> None:
     """The model at rest at the held level, the queue full of it; the process gain learned so
-    far is kept (a new cut of the same tool and material), unless it is not a gain."""
+    far is kept (a new cut of the same tool and material), unless it is not a gain; its trend
+    belongs to the cut that ended and starts again from none."""
     held = cs[CS_HELD]
     nx = int(cp[P_NX])
     if not (math.isfinite(cs[S_GAIN]) and cs[S_GAIN] > 0.0):
         cs[S_GAIN] = cp[P_GAIN0]
+    cs[S_TREND], cs[S_SPREAD], cs[S_CALM] = 0.0, math.inf, 0.0
     for i in range(3):
         cs[S_X + i] = 0.0
     cs[S_X] = held
@@ -173,6 +204,44 @@ def _response(cp: np.ndarray, x: np.ndarray, nx: int, first: float, then: float,
 
 
 @compiled
+def _learn(cp: np.ndarray, cs: np.ndarray, measured: float) -> None:
+    """One period of learning ``k`` from ``measured = F / z^g``, and its trend from the
+    periods that are no jump (the module's text)."""
+    innovation = measured - cs[S_GAIN]
+    before = cs[S_GAIN]
+    cs[S_GAIN] += cp[P_WEIGHT] * innovation
+    weight = cp[P_TREND]
+    if weight <= 0.0:
+        return
+    spread = cs[S_SPREAD]
+    if not (math.isfinite(spread) and spread > 0.0):
+        # the cut's first period: 1 % of k, which the innovations then widen to their own
+        cs[S_SPREAD] = (SPREAD0 * measured) ** 2
+        return
+    gate = TREND_GATE * TREND_GATE * spread
+    if innovation * innovation > gate:
+        cs[S_CALM] = 0.0
+    else:
+        cs[S_CALM] += 1.0
+        if cs[S_CALM] > cp[P_CALM]:
+            cs[S_TREND] += weight * (cs[S_GAIN] - before - cs[S_TREND])
+    cs[S_SPREAD] = spread + weight * (min(innovation * innovation, 4.0 * spread) - spread)
+
+
+@compiled
+def _significant_trend(cp: np.ndarray, cs: np.ndarray) -> float:
+    """The trend less its own standard deviation (towards 0; 0 if no more than that):
+    the learned increments ``a e`` of innovations ``e`` averaged with weight ``b`` vary by
+    ``a sqrt(b / (2 - b)) std(e)``, and the horizon's lead would carry that noise into every
+    period's level."""
+    weight, trend = cp[P_TREND], cs[S_TREND]
+    if weight <= 0.0 or not math.isfinite(cs[S_SPREAD]):
+        return 0.0
+    noise = cp[P_WEIGHT] * math.sqrt(cs[S_SPREAD] * weight / (2.0 - weight))
+    return math.copysign(max(abs(trend) - TREND_SIGNIFICANCE * noise, 0.0), trend)
+
+
+@compiled
 def step(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndarray) -> None:
     """The level of least cost (the module's text)."""
     ref = cp[C_REF]
@@ -180,17 +249,23 @@ def step(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndar
     g = cp[P_EXPONENT]
     z_now = cs[S_X + nx - 1]
     if z_now > 1.0 and force > cp[P_ENGAGED] * ref:
-        cs[S_GAIN] += cp[P_WEIGHT] * (force / z_now ** g - cs[S_GAIN])
-    k = cs[S_GAIN]
-    z_ref = (ref / k) ** (1.0 / g)
-    w = g * k * z_ref ** (g - 1.0)
+        _learn(cp, cs, force / z_now ** g)
+    k, trend = cs[S_GAIN], _significant_trend(cp, cs)
     horizon = int(cp[P_HORIZON])
+    dead = int(cp[P_DEAD])
+    # k over the horizon (the module's text), and the feed z_ref that gives the reference
+    # there, and w, which turns feed into force
+    lead = (1.0 - cp[P_WEIGHT]) / cp[P_WEIGHT] + dead + 1.0
+    z_ref, w = np.empty(horizon), np.empty(horizon)
+    for j in range(horizon):
+        k_j = min(max(k + trend * (lead + j), 0.5 * k), 2.0 * k)
+        z_ref[j] = (ref / k_j) ** (1.0 / g)
+        w[j] = g * k_j * z_ref[j] ** (g - 1.0)
     # z_j = a_j + b_j u + c_j v: the free response after the dead time's levels (a), and the
     # responses to the first move (b) and to the held tail (c).
     x = np.empty(3)
     for i in range(3):
         x[i] = cs[S_X + i]
-    dead = int(cp[P_DEAD])
     at = int(cs[S_QIDX])
     for j in range(dead):
         _advance(cp, x, nx, cs[S_QUEUE + (at + j) % dead])
@@ -212,10 +287,10 @@ def step(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndar
             continue
         rc = 0.0
         for j in range(horizon):
-            rc += c[j] * (z_ref - a[j] - b[j] * u)
+            rc += c[j] * (z_ref[j] - a[j] - b[j] * u)
         v = min(max(rc / cc, cp[P_LOW]), cp[P_HIGH]) if cc > 0.0 else u
         for j in range(horizon):
-            e = w * (a[j] + b[j] * u + c[j] * v - z_ref)
+            e = w[j] * (a[j] + b[j] * u + c[j] * v - z_ref[j])
             cost += e * e
         if cost < best_cost:
             best, best_cost = u, cost
