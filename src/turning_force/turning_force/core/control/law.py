@@ -79,12 +79,14 @@ C_LAW = C_DRIFT + drift.PARAMS
 # reaction's integral), the counted swings' half-periods' sum, the detune reaction's
 # crossover, whether it waits for the force to settle (1) after the gate set the feed, and
 # whether the last swing was larger than the one before (1: a kick's return, .update._turn),
-# and the log of the force's share of the reference the detune reaction saw last period.
+# and the log of the force's share of the reference the detune reaction saw last period; the
+# error's mean while the request is pinned at an end (.update._track_reach).
 CS_HELD, CS_CARRY, CS_PINNED, CS_RESETS, CS_SIDE, CS_ENGAGED = range(6)
 (CS_O_DIR, CS_O_EXT, CS_O_LAST, CS_O_SWING, CS_O_COUNT, CS_O_SINCE, CS_O_ALARM, CS_O_ALARMS,
  CS_O_MEAN, CS_O_HOLD, CS_O_HALVES, CS_O_CROSSOVER, CS_O_WAIT, CS_O_GREW,
  CS_O_LOG_FORCE) = range(6, 21)
-CS_DRIFT = 21   # the drift monitor's state (.drift), drift.STATE values
+CS_PIN_ERROR = 21
+CS_DRIFT = 22   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.

@@ -57,6 +57,7 @@ from turning_force.core.control.law import (
     CS_O_WAIT,
     CS_PINNED,
     CS_RESETS,
+    CS_PIN_ERROR,
     CS_SIDE,
     OUT_DRIFT,
     OUT_DRIFT_SIZE,
@@ -74,6 +75,10 @@ __all__ = ['control_applied', 'control_step', 'control_tool', 'controller_applie
 
 # FeedOverride.REASON_NORMAL: the controller's request went through as asked.
 REASON_NORMAL = 0
+# Reachability: the error's mean that says the force reached the reference, over this long (a
+# third of unreachable_after_s's default: a reference that comes within reach, a deeper cut,
+# un-flags in a few tenths of a second).
+REACH_MEAN_S = 0.3
 # The oscillation detector: a turning point is where the error has come back this fraction of
 # the alarm's swing from its extreme (hysteresis against noise); a counted swing is at least
 # DECAY of the one before (a transient's swings die away, a limit cycle's do not) and comes
@@ -133,7 +138,10 @@ law_step, law_reset, law_finite, law_sent = _laws.step, _laws.reset, _laws.finit
 
 @compiled
 def _track_reach(cp: np.ndarray, cs: np.ndarray, request: float, error: float) -> float:
-    """1.0 while the reference can be reached, else 0.0 (:class:`..control.Controller`)."""
+    """1.0 while the reference can be reached, else 0.0 (:class:`..control.Controller`). The
+    force reaches the reference when the error's mean over :data:`REACH_MEAN_S` does, not a
+    sample of it: a cut's own fluctuation (a few % of the force) crosses a reference a few
+    newtons out of reach many times a second, and each crossing restarted the clock."""
     tolerance = pymin(cp[C_GAP] / 2.0, 5.0)
     side = 0
     if request >= cp[C_MAX] - tolerance and error < 0.0:
@@ -141,14 +149,17 @@ def _track_reach(cp: np.ndarray, cs: np.ndarray, request: float, error: float) -
     elif request <= cp[C_MIN] + tolerance and error > 0.0:
         side = -1
     pinned_side = int(cs[CS_SIDE])
+    if pinned_side != 0:
+        cs[CS_PIN_ERROR] += (error - cs[CS_PIN_ERROR]) * pymin(cp[C_PERIOD] / REACH_MEAN_S, 1.0)
     if side != 0 and side == pinned_side:
         cs[CS_PINNED] += cp[C_PERIOD]
     elif side != 0:
-        cs[CS_SIDE], cs[CS_PINNED] = side, cp[C_PERIOD]
+        cs[CS_SIDE], cs[CS_PINNED], cs[CS_PIN_ERROR] = side, cp[C_PERIOD], error
     else:
-        reached = (pinned_side == 1 and (error >= 0.0 or request
+        mean = cs[CS_PIN_ERROR]
+        reached = (pinned_side == 1 and (mean >= 0.0 or request
                                          < cp[C_MAX] - 2.0 * tolerance)) or (
-            pinned_side == -1 and (error <= 0.0 or request > cp[C_MIN] + 2.0 * tolerance))
+            pinned_side == -1 and (mean <= 0.0 or request > cp[C_MIN] + 2.0 * tolerance))
         if reached:
             cs[CS_SIDE], cs[CS_PINNED] = 0.0, 0.0
     return 1.0 if cs[CS_PINNED] < cp[C_UNREACH] else 0.0
