@@ -20,7 +20,6 @@ import contextlib
 import datetime
 import functools
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +45,7 @@ from turning_force.core.experiment import SETTINGS_OF, RecorderSettings
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import STREAM_DEPTH, NodeTime, run_nodes, timer_callback
+from turning_force.nodes.spin import STREAM_DEPTH, NodeTime, node_main, timer_callback
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
     CUSTOM_PARAMETERS,
@@ -251,8 +250,7 @@ class SessionRecorderNode(Node):
         super().destroy_node()
 
 
-def main(args: Sequence[str] | None = None) -> int:
-    return run_nodes(lambda: [SessionRecorderNode()], args)
+main = node_main(SessionRecorderNode)
 
 
 if __name__ == '__main__':

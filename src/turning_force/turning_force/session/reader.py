@@ -33,7 +33,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cache, cached_property
 from pathlib import Path
-from typing import Any, cast, overload
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -526,7 +526,7 @@ class Session:
     @property
     def blocks(self) -> Sequence[CurrentBlock]:
         """The blocks one by one (views of :attr:`currents`), for callers that take blocks."""
-        return self.ragged if self.ragged is not None else _Blocks(self.currents)
+        return self.ragged if self.ragged is not None else self.currents or []
 
     @property
     def block_starts_s(self) -> FloatArray:
@@ -556,30 +556,6 @@ class Session:
     @property
     def versions(self) -> dict[str, str]:
         return dict(json.loads(self.custom_data.get(CUSTOM_VERSIONS, '{}')))
-
-
-class _Blocks(Sequence[CurrentBlock]):
-    """:class:`CurrentArrays` as a sequence of :class:`CurrentBlock` views, made on access."""
-
-    def __init__(self, currents: CurrentArrays | None) -> None:
-        self._currents = currents
-
-    def __len__(self) -> int:
-        return 0 if self._currents is None else len(self._currents)
-
-    @overload
-    def __getitem__(self, k: int) -> CurrentBlock: ...
-
-    @overload
-    def __getitem__(self, k: slice) -> list[CurrentBlock]: ...
-
-    def __getitem__(self, k: int | slice) -> CurrentBlock | list[CurrentBlock]:
-        if isinstance(k, slice):
-            return [self[i] for i in range(*k.indices(len(self)))]
-        n = len(self)
-        if not -n <= k < n or self._currents is None:
-            raise IndexError(f'block {k} of {n}')
-        return self._currents.block(k % n)
 
 
 # Settings added after sessions were recorded whose default behaves differently from what

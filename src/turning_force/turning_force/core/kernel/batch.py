@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -42,9 +42,10 @@ REPLAY_CHUNK_BLOCKS = 20000
 
 
 @dataclass(frozen=True)
-class CurrentArrays:
+class CurrentArrays(Sequence[CurrentBlock]):
     """A run of DAQ blocks as arrays: ``n`` blocks of ``m`` samples, sample ``j`` of block ``k``
-    taken at ``t0_s[k] + j * sample_period_s`` (the core side of ``servo/currents``)."""
+    taken at ``t0_s[k] + j * sample_period_s`` (the core side of ``servo/currents``); as a
+    sequence, its blocks one by one (:meth:`block`'s views, made on access)."""
 
     t0_s: FloatArray                 # (n,) time of each block's first sample [s]
     sample_period_s: float           # [s]
@@ -55,6 +56,17 @@ class CurrentArrays:
 
     def __len__(self) -> int:
         return int(self.t0_s.size)
+
+    @overload
+    def __getitem__(self, k: int) -> CurrentBlock: ...
+
+    @overload
+    def __getitem__(self, k: slice) -> list[CurrentBlock]: ...
+
+    def __getitem__(self, k: int | slice) -> CurrentBlock | list[CurrentBlock]:
+        if isinstance(k, slice):
+            return [self.block(i) for i in range(*k.indices(len(self)))]
+        return self.block(range(len(self))[k])   # a range raises IndexError beyond the blocks
 
     @property
     def samples_per_block(self) -> int:
