@@ -29,6 +29,7 @@ import importlib.util
 import json
 import os
 import platform
+import struct
 import threading
 import time
 import zlib
@@ -52,15 +53,7 @@ from rosbags.interfaces import (
 )
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.rosbag2.errors import WriterError
-from rosbags.rosbag2.storage_mcap import (
-    McapWriter,
-    PendingChunk,
-    write_record,
-    write_string,
-    write_uint16,
-    write_uint32,
-    write_uint64,
-)
+from rosbags.rosbag2.storage_mcap import McapWriter, PendingChunk, write_record
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -181,15 +174,12 @@ class _CrcMcapWriter(McapWriter):
         """rosbags' ``close_chunk`` with the CRC filled in, and the message indexes written as
         arrays (a chunk holds thousands of messages)."""
         chunk = self.chunk
-        crc = zlib.crc32(chunk.bio.getbuffer())
-        rec = BytesIO()
-        write_uint64(rec, chunk.message_start_time)
-        write_uint64(rec, chunk.message_end_time)
-        write_uint64(rec, chunk.bio.tell())
-        write_uint32(rec, crc)
+        size, name = chunk.bio.tell(), self.compression.encode()
+        times = (chunk.message_start_time, chunk.message_end_time)
         compressed = self.compressor(chunk.bio.getvalue())
-        write_string(rec, self.compression)
-        write_uint64(rec, len(compressed))
+        rec = BytesIO()   # the chunk: times, sizes and CRC, compression, the records
+        rec.write(struct.pack('<QQQII', *times, size, zlib.crc32(chunk.bio.getbuffer()),
+                              len(name)) + name + struct.pack('<Q', len(compressed)))
         rec.write(compressed)
         chunk_start = self.bio.tell()
         write_record(self.bio, 0x06, rec)
@@ -203,23 +193,14 @@ class _CrcMcapWriter(McapWriter):
             entries = entries[np.argsort(entries[:, 1], kind='stable')]   # in file order
             offsets.append((cid, self.bio.tell()))
             rec = BytesIO()
-            write_uint16(rec, cid)
-            write_uint32(rec, entries.size * 8)
-            rec.write(entries.astype('<u8').tobytes())
+            rec.write(struct.pack('<HI', cid, entries.size * 8) + entries.astype('<u8').tobytes())
             write_record(self.bio, 0x07, rec)
-        rec = BytesIO()
-        write_uint64(rec, chunk.message_start_time)
-        write_uint64(rec, chunk.message_end_time)
-        write_uint64(rec, chunk_start)
-        write_uint64(rec, chunk_end - chunk_start)
-        write_uint32(rec, len(offsets) * 10)
-        for cid, offset in offsets:
-            write_uint16(rec, cid)
-            write_uint64(rec, offset)
-        write_uint64(rec, self.bio.tell() - chunk_end)
-        write_string(rec, self.compression)
-        write_uint64(rec, len(compressed))
-        write_uint64(rec, chunk.bio.tell())
+        rec = BytesIO()   # its index entry, for the summary
+        rec.write(struct.pack('<QQQQI', *times, chunk_start, chunk_end - chunk_start,
+                              len(offsets) * 10))
+        rec.write(b''.join(struct.pack('<HQ', cid, offset) for cid, offset in offsets))
+        rec.write(struct.pack('<QI', self.bio.tell() - chunk_end, len(name)) + name
+                  + struct.pack('<QQ', len(compressed), size))
         self.chunks.append(rec)
         self.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
         self._bulk = {}
