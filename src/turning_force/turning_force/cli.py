@@ -163,30 +163,29 @@ def _check_bridge_files(experiment: Experiment, core: bool) -> None:
 def _run(args: argparse.Namespace) -> int:
     experiment = _load(args.experiment, args.params, args.set)
     _check_bridge_files(experiment, args.core)
-    if args.core and args.out:
-        from turning_force.commands.core_session import record_core
+    out: dict[str, Any] = {'experiment': experiment.run.name}
+    if args.core:
+        if args.out:
+            from turning_force.commands.core_session import record_core
 
-        bag = Path(args.out)
-        _check_writable(bag, '--out', new=True)
-        progress: Callable[[int, int], None] | None = None
-        if not args.json and sys.stderr.isatty():   # (session.run imports rclpy)
-            from turning_force.commands.run import print_progress
+            bag = Path(args.out)
+            out['session'] = str(bag)
+            _check_writable(bag, '--out', new=True)
+            progress: Callable[[int, int], None] | None = None
+            if not args.json and sys.stderr.isatty():   # (session.run imports rclpy)
+                from turning_force.commands.run import print_progress
 
-            progress = print_progress
-        recorded = _recorded(bag, lambda step: record_core(experiment, bag, step), progress)
-        result = recorded.run.result
-        metrics, drifted = result.metrics, result.drift
+                progress = print_progress
+            result = _recorded(bag, lambda step: record_core(experiment, bag, step),
+                               progress).run.result
+        else:
+            from turning_force.core.kernel.simulate import simulate
+
+            with _signals(defer=False):
+                result = simulate(experiment)
+        metrics = out['metrics'] = result.metrics
+        drifted = result.drift
         stopped = handed_back(result.trace['t_s'], result.trace['override_reason'])
-        out: dict[str, Any] = {'experiment': experiment.run.name, 'session': str(bag),
-                               'metrics': metrics}
-    elif args.core:
-        from turning_force.core.kernel.simulate import simulate
-
-        with _signals(defer=False):
-            result = simulate(experiment)
-        metrics, drifted = result.metrics, result.drift
-        stopped = handed_back(result.trace['t_s'], result.trace['override_reason'])
-        out = {'experiment': experiment.run.name, 'metrics': metrics}
     else:
         from turning_force.session.reader import read_session, recorded_metrics
         from turning_force.session.report import write_report
@@ -210,8 +209,8 @@ def _run(args: argparse.Namespace) -> int:
                 metrics = {}   # an air cut: recorded, nothing to score
             metrics['realtime_factor'] = outcome.realtime_factor
             figure = write_report(session, metrics, Path(f'{bag}.png'))
-        out = {'experiment': experiment.run.name, 'session': str(bag), 'figure': str(figure),
-               'executor': outcome.executor, 'metrics': metrics}
+        out.update(session=str(bag), figure=str(figure), executor=outcome.executor,
+                   metrics=metrics)
     if stopped:
         out['handed_back'] = stopped
     if drifted:
