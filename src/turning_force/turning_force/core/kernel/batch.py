@@ -515,7 +515,7 @@ def run_core(experiment: Experiment) -> CoreRun:
     DAQ sample the plant produced, the chain's estimate, command and decision for each block, and
     the plant's state at each block's end; ``result`` is what simulate gives, bit for bit (its
     ``realtime_factor`` aside)."""
-    from turning_force.core.kernel.simulate import CoreArrays, run_loop
+    from turning_force.core.kernel.simulate import run_loop
     from turning_force.core.pmc.gate import cut_record
 
     jit = kernel.load()
@@ -524,9 +524,8 @@ def run_core(experiment: Experiment) -> CoreRun:
     m = plant_settings.samples_per_block
     currents = CurrentArrays.empty(n, m, 1.0 / plant_settings.sample_rate_hz)
     rows = np.zeros((n, jit.CHAIN_COLUMNS))
-    kept = CoreArrays(currents.t0_s, currents.phase_u_a, currents.phase_v_a,
-                      currents.rotor_angle_rad, currents.feed_rate_mm_min, rows)
-    result = run_loop(experiment, kept)
+    result = run_loop(experiment, (currents.t0_s, currents.phase_u_a, currents.phase_v_a,
+                                   currents.rotor_angle_rad, currents.feed_rate_mm_min, rows))
     chain = ChainTrace._empty(n)
     table = get_table(experiment.bridge.override_table)
     _rows_into(jit, rows, chain, 0, table, experiment.estimator, currents)
