@@ -33,6 +33,7 @@ from turning_force.session.bag import (
     CUSTOM_PARAMETERS,
     CUSTOM_PLANNED,
     CUSTOM_VERSIONS,
+    GRAPH_TYPES,
     SessionWriter,
     dumps,
     software_versions,
@@ -46,21 +47,8 @@ __all__ = ['NOT_RECORDED', 'RECORDER', 'TOPICS', 'CoreSession', 'record_core',
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
 
-# The graph's topics (session_recorder's GRAPH_TOPICS) and their types.
-TOPICS: dict[str, str] = {
-    '/servo/currents': 'turning_force_msgs/msg/ServoCurrents',
-    '/servo/joint_state': 'sensor_msgs/msg/JointState',
-    '/sim/cutting_state': 'turning_force_msgs/msg/CuttingState',
-    '/force/estimate': 'turning_force_msgs/msg/ForceEstimate',
-    '/force/reference': 'std_msgs/msg/Float64',
-    '/control/feed_command': 'turning_force_msgs/msg/FeedCommand',
-    '/pmc/feed_override': 'turning_force_msgs/msg/FeedOverride',
-    '/machine/inputs': 'turning_force_msgs/msg/MachineInputs',
-    '/machine/spindle_speed': 'std_msgs/msg/Float64',
-    '/pmc/cuts': 'turning_force_msgs/msg/CutRecord',
-    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
-    '/force/measured': 'geometry_msgs/msg/WrenchStamped',
-}
+# The graph's topics (session/bag.py's GRAPH_TYPES), as the lock-step graph's names them.
+TOPICS: dict[str, str] = {f'/{t.lstrip("/")}': msgtype for t, msgtype in GRAPH_TYPES.items()}
 # Per block, in the order the graph's messages reach the recorder (a cut that ended is
 # published by the bridge as it answers the block, before the override).
 PER_BLOCK = ('/machine/inputs', '/machine/spindle_speed', '/servo/currents', '/servo/joint_state',

@@ -60,7 +60,7 @@ from rosbags.typesys.store import Typestore
 from turning_force.core.errors import ConfigError, TurningForceError
 
 __all__ = ['CUSTOM_END', 'CUSTOM_EXPERIMENT', 'CUSTOM_PARAMETERS', 'CUSTOM_PLANNED',
-           'CUSTOM_RECORDING', 'CUSTOM_REPAIR', 'CUSTOM_STARTED', 'CUSTOM_VERSIONS',
+           'CUSTOM_RECORDING', 'CUSTOM_REPAIR', 'CUSTOM_STARTED', 'CUSTOM_VERSIONS', 'GRAPH_TYPES',
            'SETTINGS_TOPIC', 'SETTINGS_TYPE', 'BagError', 'SessionWriter', 'schema',
            'settings_message', 'settings_text', 'software_versions', 'stopped_by', 'typestore']
 
@@ -83,6 +83,22 @@ CUSTOM_END = 'turning_force.end_json'
 # The topic the custom data is recorded on (relative: a namespaced graph's own).
 SETTINGS_TOPIC = 'session/settings'
 SETTINGS_TYPE = 'std_msgs/msg/String'
+# The graph's topics (relative: a namespaced graph's own; /diagnostics is global) and their
+# types: what session_recorder subscribes and a session holds.
+GRAPH_TYPES: dict[str, str] = {
+    'servo/currents': 'turning_force_msgs/msg/ServoCurrents',
+    'servo/joint_state': 'sensor_msgs/msg/JointState',
+    'sim/cutting_state': 'turning_force_msgs/msg/CuttingState',
+    'force/estimate': 'turning_force_msgs/msg/ForceEstimate',
+    'force/reference': 'std_msgs/msg/Float64',
+    'control/feed_command': 'turning_force_msgs/msg/FeedCommand',
+    'pmc/feed_override': 'turning_force_msgs/msg/FeedOverride',
+    'machine/inputs': 'turning_force_msgs/msg/MachineInputs',
+    'machine/spindle_speed': 'std_msgs/msg/Float64',
+    'pmc/cuts': 'turning_force_msgs/msg/CutRecord',
+    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
+    'force/measured': 'geometry_msgs/msg/WrenchStamped',
+}
 # Latched, as rosbag2 records a transient-local publisher (``ros2 bag play`` republishes it so).
 LATCHED = Qos(QosHistory.UNKNOWN, 0, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL,
               QosTime(2147483647, 4294967295), QosTime(2147483647, 4294967295),
