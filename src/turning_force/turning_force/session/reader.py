@@ -63,6 +63,7 @@ from turning_force.session.bag import (
     CUSTOM_RECORDING,
     CUSTOM_REPAIR,
     CUSTOM_VERSIONS,
+    GRAPH_TYPES,
     SETTINGS_TOPIC,
     SETTINGS_TYPE,
     BagError,
@@ -81,13 +82,7 @@ IntArray = npt.NDArray[np.int64]
 
 ANSWERS = ('force/estimate', 'control/feed_command', 'pmc/feed_override', 'sim/cutting_state')
 READ = ('servo/currents', *ANSWERS, 'pmc/cuts')
-MSGTYPES = {
-    'servo/currents': 'turning_force_msgs/msg/ServoCurrents',
-    'force/estimate': 'turning_force_msgs/msg/ForceEstimate',
-    'control/feed_command': 'turning_force_msgs/msg/FeedCommand',
-    'pmc/feed_override': 'turning_force_msgs/msg/FeedOverride',
-    'sim/cutting_state': 'turning_force_msgs/msg/CuttingState',
-}
+MSGTYPES = {topic: GRAPH_TYPES[topic] for topic in ('servo/currents', *ANSWERS)}
 # Each signal of a session (per block, NaN where no message answers it): the answering topic
 # and the field it comes from. The decision's inputs and outputs are NaN in sessions recorded
 # before FeedOverride carried them.
