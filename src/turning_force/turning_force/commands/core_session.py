@@ -17,7 +17,7 @@ the reader and replay take are equal.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +27,7 @@ import numpy.typing as npt
 from turning_force.core.experiment import Experiment
 from turning_force.core.kernel.batch import CoreRun, run_core
 from turning_force.core.pmc.overrides import get_table
+from turning_force.core.pmc.shopfloor import CutRecord
 from turning_force.session import codec
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
@@ -260,9 +261,7 @@ def _cuts(store: Any, run: CoreRun, experiment: Experiment, end_ns: IntArray
                for r, first, end in zip(run.cuts, firsts.tolist(), last.tolist(), strict=True)]
     stamps = np.array([round(r.end_s * 1e9) for r in records], dtype=np.int64)
     columns: dict[str, Any] = {**_stamp(stamps), 'tool': bridge.tool}
-    for name in ('index', 'start_s', 'end_s', 'duration_s', 'programmed_feed_s', 'max_force_n',
-                 'mean_force_n', 'min_override_pct', 'overload_events', 'breakage',
-                 'reachable_fraction', 'learned', 'complete'):
+    for name in (*(f.name for f in fields(CutRecord) if f.name != 'tool'), 'duration_s'):
         columns[name] = np.array([getattr(r, name) for r in records])
     return (_encode(store, '/pmc/cuts', columns, len(records)),
             last.astype(np.int64) + bridge.debounce_blocks(period_s))
