@@ -163,30 +163,29 @@ def _check_bridge_files(experiment: Experiment, core: bool) -> None:
 def _run(args: argparse.Namespace) -> int:
     experiment = _load(args.experiment, args.params, args.set)
     _check_bridge_files(experiment, args.core)
-    if args.core and args.out:
-        from turning_force.commands.core_session import record_core
+    out: dict[str, Any] = {'experiment': experiment.run.name}
+    if args.core:
+        if args.out:
+            from turning_force.commands.core_session import record_core
 
-        bag = Path(args.out)
-        _check_writable(bag, '--out', new=True)
-        progress: Callable[[int, int], None] | None = None
-        if not args.json and sys.stderr.isatty():   # (session.run imports rclpy)
-            from turning_force.commands.run import print_progress
+            bag = Path(args.out)
+            out['session'] = str(bag)
+            _check_writable(bag, '--out', new=True)
+            progress: Callable[[int, int], None] | None = None
+            if not args.json and sys.stderr.isatty():   # (session.run imports rclpy)
+                from turning_force.commands.run import print_progress
 
-            progress = print_progress
-        recorded = _recorded(bag, lambda step: record_core(experiment, bag, step), progress)
-        result = recorded.run.result
-        metrics, drifted = result.metrics, result.drift
+                progress = print_progress
+            result = _recorded(bag, lambda step: record_core(experiment, bag, step),
+                               progress).run.result
+        else:
+            from turning_force.core.kernel.simulate import simulate
+
+            with _signals(defer=False):
+                result = simulate(experiment)
+        metrics = out['metrics'] = result.metrics
+        drifted = result.drift
         stopped = handed_back(result.trace['t_s'], result.trace['override_reason'])
-        out: dict[str, Any] = {'experiment': experiment.run.name, 'session': str(bag),
-                               'metrics': metrics}
-    elif args.core:
-        from turning_force.core.kernel.simulate import simulate
-
-        with _signals(defer=False):
-            result = simulate(experiment)
-        metrics, drifted = result.metrics, result.drift
-        stopped = handed_back(result.trace['t_s'], result.trace['override_reason'])
-        out = {'experiment': experiment.run.name, 'metrics': metrics}
     else:
         from turning_force.session.reader import read_session, recorded_metrics
         from turning_force.session.report import write_report
@@ -210,8 +209,8 @@ def _run(args: argparse.Namespace) -> int:
                 metrics = {}   # an air cut: recorded, nothing to score
             metrics['realtime_factor'] = outcome.realtime_factor
             figure = write_report(session, metrics, Path(f'{bag}.png'))
-        out = {'experiment': experiment.run.name, 'session': str(bag), 'figure': str(figure),
-               'executor': outcome.executor, 'metrics': metrics}
+        out.update(session=str(bag), figure=str(figure), executor=outcome.executor,
+                   metrics=metrics)
     if stopped:
         out['handed_back'] = stopped
     if drifted:
@@ -915,58 +914,66 @@ def _watch(args: argparse.Namespace) -> int:
     return watch(args.namespace, args.duration, _band_n(args))
 
 
+# Options several commands take, by flag (``command(...)`` names them); {what}: what runs in
+# parallel.
+SHARED_OPTIONS: dict[str, dict[str, Any]] = {
+    '--params': {'action': 'append', 'default': [], 'metavar': 'FILE', 'help': (
+        'a parameters file laid over the experiment (repeatable; e.g. what identify wrote); '
+        '--set applies after it')},
+    '--set': {'action': 'append', 'default': [], 'metavar': 'NODE.PARAM=VALUE',
+              'help': 'change one parameter (repeatable; the value is read as YAML)'},
+    '--json': {'action': 'store_true', 'help': 'print one JSON object'},
+    '--partial': {'action': 'store_true', 'help': (
+        'read a session that misses messages (what it misses is printed) instead of refusing '
+        'it')},
+    '--jobs': {'type': int, 'metavar': 'N',
+               'help': 'local processes for the {what} (default: one per core)'},
+    '--dask': {'metavar': 'SCHEDULER_ADDRESS', 'help': (
+        "run the {what} on a Dask cluster instead (pip install 'turning_force[dask]', on the "
+        'workers too); on another host: tls://... with --tls-ca, --tls-cert and --tls-key')},
+    '--tls-ca': {'metavar': 'FILE',
+                 'help': "with --dask tls://: the CA certificate that signed the scheduler's"},
+    '--tls-cert': {'metavar': 'FILE', 'help': "with --dask tls://: this client's certificate"},
+    '--tls-key': {'metavar': 'FILE', 'help': 'with --dask tls://: its key'},
+    '--insecure': {'action': 'store_true', 'help': (
+        'allow a --dask scheduler on another host over plain tcp:// (a trusted network only: '
+        'the sessions and the work travel unencrypted)')},
+    '--namespace': {'default': '/', 'help': (
+        "the graph's namespace, as its nodes were started with (default /)")},
+    '--experiment': {'metavar': 'FILE', 'help': (
+        'the experiment the graph runs: the band about the reference is its allowed_error_n')},
+}
+PARALLEL = ('--jobs', '--dask', '--tls-ca', '--tls-cert', '--tls-key', '--insecure')
+LIVE = ('--namespace', '--experiment')
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='turning-force', description=__doc__.split('\n')[0])
     commands = parser.add_subparsers(dest='command', required=True)
 
-    def add_params(command: argparse.ArgumentParser) -> None:
-        command.add_argument('--params', action='append', default=[], metavar='FILE',
-                             help='a parameters file laid over the experiment (repeatable; '
-                             'e.g. what identify wrote); --set applies after it')
+    def command(name: str, handler: Callable[[argparse.Namespace], int], help: str,
+                *shared: str, what: str = '') -> argparse.ArgumentParser:
+        """A command, its handler and the :data:`SHARED_OPTIONS` named (before its own)."""
+        sub = commands.add_parser(name, help=help)
+        sub.set_defaults(handler=handler)
+        for flag in shared:
+            options = SHARED_OPTIONS[flag]
+            sub.add_argument(flag, **{**options, 'help': options['help'].format(what=what)})
+        return sub
 
-    def add_set(command: argparse.ArgumentParser) -> None:
-        command.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
-                             help='change one parameter (repeatable; the value is read as YAML)')
-
-    def add_partial(command: argparse.ArgumentParser) -> None:
-        command.add_argument('--partial', action='store_true',
-                             help='read a session that misses messages (what it misses is '
-                             'printed) instead of refusing it')
-
-    def add_parallel(command: argparse.ArgumentParser, what: str) -> None:
-        command.add_argument('--jobs', type=int, metavar='N',
-                             help=f'local processes for the {what} (default: one per core)')
-        command.add_argument('--dask', metavar='SCHEDULER_ADDRESS',
-                             help=f'run the {what} on a Dask cluster instead (pip install '
-                             "'turning_force[dask]', on the workers too); on another host: "
-                             'tls://... with --tls-ca, --tls-cert and --tls-key')
-        command.add_argument('--tls-ca', metavar='FILE', help='with --dask tls://: the CA '
-                             "certificate that signed the scheduler's")
-        command.add_argument('--tls-cert', metavar='FILE', help='with --dask tls://: this '
-                             "client's certificate")
-        command.add_argument('--tls-key', metavar='FILE', help='with --dask tls://: its key')
-        command.add_argument('--insecure', action='store_true', help='allow a --dask '
-                             'scheduler on another host over plain tcp:// (a trusted network '
-                             'only: the sessions and the work travel unencrypted)')
-
-    run = commands.add_parser('run', help='run an experiment through the graph, recorded')
+    run = command('run', _run, 'run an experiment through the graph, recorded', '--params',
+                  '--set', '--json')
     run.add_argument('experiment', help='ROS 2 parameters file (config/experiments/*.yaml)')
     run.add_argument('--out', help='session folder to create (default bags/<name>_<time>)')
-    add_params(run)
-    add_set(run)
-    run.add_argument('--json', action='store_true', help='print one JSON object')
     run.add_argument('--core', action='store_true', help='the ROS-free core loop (recorded '
                      'as the graph records it with --out; no session without)')
-    run.set_defaults(handler=_run)
 
-    rep = commands.add_parser('replay', help='re-run estimator and controller on sessions')
+    rep = command('replay', _replay, 're-run estimator and controller on sessions', '--params',
+                  '--set', '--json', '--partial', *PARALLEL, what='sessions')
     rep.add_argument('bags', nargs='+', metavar='BAG',
                      help='session folder (rosbag2, MCAP); several: one row each and totals')
     rep.add_argument('--experiment', help='settings to start from, for a session that embeds '
                      'none (default: the recorded ones)')
-    add_params(rep)
-    add_set(rep)
-    rep.add_argument('--json', action='store_true', help='print one JSON object')
     rep.add_argument('--publish', action='store_true',
                      help='play the sensor topics into a live graph instead (one BAG)')
     rep.add_argument('--rate', type=float, default=1.0, help='playback rate with --publish')
@@ -976,12 +983,10 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument('--identified-from', action='append', metavar='BAG',
                      help='with --closed-loop: identify from this commissioning session '
                      '(repeatable) instead of the replayed one')
-    add_partial(rep)
-    add_parallel(rep, 'sessions')
-    rep.set_defaults(handler=_replay)
 
-    swp = commands.add_parser('sweep', help='every combination of a grid of settings, '
-                              'closed loop or on a session; the best, a table and a heat map')
+    swp = command('sweep', _sweep, 'every combination of a grid of settings, closed loop or '
+                  'on a session; the best, a table and a heat map', '--params', '--set', '--json',
+                  '--partial', *PARALLEL, what='points')
     swp.add_argument('experiment', nargs='?', help='ROS 2 parameters file; with --replay: '
                      'settings to start from instead of the recorded ones')
     swp.add_argument('--grid', action='append', required=True,
@@ -990,28 +995,20 @@ def build_parser() -> argparse.ArgumentParser:
                      'log-spaced, or v1,v2,... (values read as YAML)')
     swp.add_argument('--replay', metavar='BAG', help="open loop on this session's recorded "
                      'currents instead of the simulator')
-    add_params(swp)
-    add_set(swp)
     swp.add_argument('--metric', default='steady_mean_abs_error_n', choices=METRIC_NAMES,
                      help='what the best are ranked by (default: steady_mean_abs_error_n)')
     swp.add_argument('--top', type=int, default=5, help='how many of the best to print')
     swp.add_argument('--out', help='the whole table: .csv or .parquet')
     swp.add_argument('--figure', help='heat map of the metric over the first two axes (.png)')
-    swp.add_argument('--json', action='store_true', help='print one JSON object')
-    add_partial(swp)
-    add_parallel(swp, 'points')
-    swp.set_defaults(handler=_sweep)
 
-    report = commands.add_parser('report', help='the figure and metrics of a session')
+    report = command('report', _report, 'the figure and metrics of a session', '--json',
+                     '--partial')
     report.add_argument('bag', help='session folder (rosbag2, MCAP)')
     report.add_argument('--out', help='PNG or HTML to write (default: a PNG beside the '
                         'session)')
-    report.add_argument('--json', action='store_true', help='print one JSON object')
-    add_partial(report)
-    report.set_defaults(handler=_report)
 
-    cal = commands.add_parser('calibrate', help='friction (Park Eq. 25) from air-cut sessions; '
-                              'with --map the current-to-force map (Eq. 26)')
+    cal = command('calibrate', _calibrate, 'friction (Park Eq. 25) from air-cut sessions; '
+                  'with --map the current-to-force map (Eq. 26)', '--json', '--partial')
     cal.add_argument('bags', nargs='+', help='air-cut sessions, one feed each, two or more; '
                      'with --map: cuts recorded with a dynamometer on force/measured')
     cal.add_argument('--map', action='store_true', help='fit Park Eq. 26 against the '
@@ -1023,12 +1020,9 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument('--out', help='with --map: parameters file to write')
     cal.add_argument('--settle-s', type=float, default=0.5,
                      help='time left out at the start of each session [s]')
-    cal.add_argument('--json', action='store_true', help='print one JSON object')
-    add_partial(cal)
-    cal.set_defaults(handler=_calibrate)
 
-    ident = commands.add_parser('identify', help="the machine's model from commissioning "
-                                'sessions, as a parameters file')
+    ident = command('identify', _identify, "the machine's model from commissioning sessions, "
+                    'as a parameters file', '--json')
     ident.add_argument('bags', nargs='+', help='sessions of the commissioning experiment (an '
                        'air move and a cut with override steps), or production cuts under '
                        'regulation (with --prior)')
@@ -1053,24 +1047,18 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument('--tool', type=int, metavar='N',
                        help="write the controller's settings as tool N's section of the tools "
                        'file --out (docs/commissioning.md), keeping the other tools')
-    ident.add_argument('--json', action='store_true', help='print one JSON object')
-    ident.set_defaults(handler=_identify)
 
-    fix = commands.add_parser('repair', help='rebuild a session from what its MCAP holds')
-    fix.add_argument('bag', help='session folder (rosbag2, MCAP)')
-    fix.add_argument('--json', action='store_true', help='print one JSON object')
-    fix.set_defaults(handler=_repair)
+    command('repair', _repair, 'rebuild a session from what its MCAP holds', '--json'
+            ).add_argument('bag', help='session folder (rosbag2, MCAP)')
 
-    papers = commands.add_parser('reproduce', help="the papers' scenarios beside their numbers")
+    papers = command('reproduce', _reproduce, "the papers' scenarios beside their numbers",
+                     '--set', '--json')
     papers.add_argument('--dir', default='config/experiments', help='experiment files')
     papers.add_argument('--experiment', action='append', default=[], metavar='NAME',
                         help='only the rows that run this experiment (repeatable)')
-    add_set(papers)
-    papers.add_argument('--json', action='store_true', help='print one JSON object')
-    papers.set_defaults(handler=_reproduce)
 
-    explain = commands.add_parser('describe', help='what a parameter means: unit, range, '
-                                  'default, paper and equation, which file sets it')
+    explain = command('describe', _describe, 'what a parameter means: unit, range, default, '
+                      'paper and equation, which file sets it')
     explain.add_argument('target', nargs='?', metavar='NODE | NODE.PARAM',
                          help='a node (its parameters) or one parameter (in full); none: the '
                          'nodes')
@@ -1078,10 +1066,9 @@ def build_parser() -> argparse.ArgumentParser:
                          help='experiment files searched for the ones that set NODE.PARAM')
     explain.add_argument('--markdown', action='store_true',
                          help='every parameter as docs/parameters.md has them')
-    explain.set_defaults(handler=_describe)
 
-    check = commands.add_parser('pmc-check', help='step the PMC module through every override '
-                                'level and read each back')
+    check = command('pmc-check', _pmc_check, 'step the PMC module through every override '
+                    'level and read each back')
     check.add_argument('machine', help='machine file (config/machines/*.yaml)')
     check.add_argument('--dwell-s', type=_number_in(0.0, 60.0), default=0.5,
                        help='time each level is held, for the operator to read it [s]')
@@ -1091,31 +1078,19 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument('--hand-back-pct', type=_number_in(0.0, 100.0), default=100.0,
                        help="the bridge's hand_back_pct: the wiring's all-off level must not "
                        'exceed it')
-    check.set_defaults(handler=_pmc_check)
 
-    def add_live(command: argparse.ArgumentParser) -> None:
-        command.add_argument('--namespace', default='/', help="the graph's namespace, as "
-                             "its nodes were started with (default /)")
-        command.add_argument('--experiment', metavar='FILE', help='the experiment the graph '
-                             'runs: the band about the reference is its allowed_error_n')
-
-    live = commands.add_parser('view', help="serve a running graph's topics to Foxglove or "
-                               'Lichtblick (Foxglove WebSocket)')
-    add_live(live)
+    live = command('view', _view, "serve a running graph's topics to Foxglove or Lichtblick "
+                   '(Foxglove WebSocket)', *LIVE)
     live.add_argument('--host', default='127.0.0.1', help='address to bind to (default '
                       '127.0.0.1: this machine only; 0.0.0.0: every interface, no password)')
     live.add_argument('--port', type=int, default=8765, help='TCP port (default 8765, '
                       "Foxglove's; 0: a free one, printed)")
     live.add_argument('--rate', type=float, default=0.0, metavar='HZ', help='most messages a '
                       'second on each streaming topic (default 0: every one)')
-    live.set_defaults(handler=_view)
 
-    term = commands.add_parser('watch', help="a running graph's force, override, gate and "
-                               'alarms in the terminal')
-    add_live(term)
-    term.add_argument('--duration', type=float, metavar='S', help='stop after S seconds '
-                      '(default: at Ctrl-C)')
-    term.set_defaults(handler=_watch)
+    command('watch', _watch, "a running graph's force, override, gate and alarms in the "
+            'terminal', *LIVE).add_argument(
+        '--duration', type=float, metavar='S', help='stop after S seconds (default: at Ctrl-C)')
     return parser
 
 

@@ -17,7 +17,7 @@ the reader and replay take are equal.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,12 +27,14 @@ import numpy.typing as npt
 from turning_force.core.experiment import Experiment
 from turning_force.core.kernel.batch import CoreRun, run_core
 from turning_force.core.pmc.overrides import get_table
+from turning_force.core.pmc.shopfloor import CutRecord
 from turning_force.session import codec
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
     CUSTOM_PARAMETERS,
     CUSTOM_PLANNED,
     CUSTOM_VERSIONS,
+    GRAPH_TYPES,
     SessionWriter,
     dumps,
     software_versions,
@@ -46,21 +48,8 @@ __all__ = ['NOT_RECORDED', 'RECORDER', 'TOPICS', 'CoreSession', 'record_core',
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
 
-# The graph's topics (session_recorder's GRAPH_TOPICS) and their types.
-TOPICS: dict[str, str] = {
-    '/servo/currents': 'turning_force_msgs/msg/ServoCurrents',
-    '/servo/joint_state': 'sensor_msgs/msg/JointState',
-    '/sim/cutting_state': 'turning_force_msgs/msg/CuttingState',
-    '/force/estimate': 'turning_force_msgs/msg/ForceEstimate',
-    '/force/reference': 'std_msgs/msg/Float64',
-    '/control/feed_command': 'turning_force_msgs/msg/FeedCommand',
-    '/pmc/feed_override': 'turning_force_msgs/msg/FeedOverride',
-    '/machine/inputs': 'turning_force_msgs/msg/MachineInputs',
-    '/machine/spindle_speed': 'std_msgs/msg/Float64',
-    '/pmc/cuts': 'turning_force_msgs/msg/CutRecord',
-    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
-    '/force/measured': 'geometry_msgs/msg/WrenchStamped',
-}
+# The graph's topics (session/bag.py's GRAPH_TYPES), as the lock-step graph's names them.
+TOPICS: dict[str, str] = {f'/{t.lstrip("/")}': msgtype for t, msgtype in GRAPH_TYPES.items()}
 # Per block, in the order the graph's messages reach the recorder (a cut that ended is
 # published by the bridge as it answers the block, before the override).
 PER_BLOCK = ('/machine/inputs', '/machine/spindle_speed', '/servo/currents', '/servo/joint_state',
@@ -272,9 +261,7 @@ def _cuts(store: Any, run: CoreRun, experiment: Experiment, end_ns: IntArray
                for r, first, end in zip(run.cuts, firsts.tolist(), last.tolist(), strict=True)]
     stamps = np.array([round(r.end_s * 1e9) for r in records], dtype=np.int64)
     columns: dict[str, Any] = {**_stamp(stamps), 'tool': bridge.tool}
-    for name in ('index', 'start_s', 'end_s', 'duration_s', 'programmed_feed_s', 'max_force_n',
-                 'mean_force_n', 'min_override_pct', 'overload_events', 'breakage',
-                 'reachable_fraction', 'learned', 'complete'):
+    for name in (*(f.name for f in fields(CutRecord) if f.name != 'tool'), 'duration_s'):
         columns[name] = np.array([getattr(r, name) for r in records])
     return (_encode(store, '/pmc/cuts', columns, len(records)),
             last.astype(np.int64) + bridge.debounce_blocks(period_s))

@@ -18,24 +18,19 @@ import rclpy
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.publisher import Publisher
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
-from turning_force_msgs.msg import ServoCurrents
 
 from turning_force.commands.run import print_progress
 from turning_force.nodes.force_controller import REFERENCE_QOS
-from turning_force.session.bag import BagError
+from turning_force.nodes.session_recorder import GRAPH_TOPICS
+from turning_force.session.bag import GRAPH_TYPES, BagError
 from turning_force.session.reader import read_recording, read_session
 
 __all__ = ['SENSOR_TOPICS', 'play']
 
 DISCOVERY_S = 2.0   # longest wait for a subscriber to servo/currents before playing [s]
 
-SENSOR_TOPICS: dict[str, type] = {
-    'servo/currents': ServoCurrents,
-    'servo/joint_state': JointState,
-    'force/reference': Float64,
-}
+SENSOR_TOPICS: dict[str, type] = {topic: GRAPH_TOPICS[topic] for topic in (
+    'servo/currents', 'servo/joint_state', 'force/reference')}
 
 
 def _relative(topic: str) -> str | None:
@@ -49,15 +44,13 @@ def play(bag: Path, rate: float = 1.0, context: Context | None = None,
         raise BagError(f'--rate {rate!r}: must be positive')
     read_session(bag, partial)   # a foreign, damaged or incomplete session stops here
     recording = read_recording(bag)
-    expected = {'servo/joint_state': 'sensor_msgs/msg/JointState',
-                'force/reference': 'std_msgs/msg/Float64'}
     queue: list[tuple[int, int, str, bytes]] = []   # (log time, file order, topic, CDR)
     for name, info in recording.topics.items():
         relative = _relative(name)
         if relative is None:
             continue
-        if relative in expected and info.msgtype != expected[relative]:
-            raise BagError(f'{bag}: {name} is {info.msgtype}, not {expected[relative]}')
+        if info.msgtype != GRAPH_TYPES[relative]:
+            raise BagError(f'{bag}: {name} is {info.msgtype}, not {GRAPH_TYPES[relative]}')
         queue += [(stamp, len(queue) + k, relative, raw)
                   for k, (stamp, raw) in enumerate(recording.messages.get(name, []))]
     queue.sort()

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import collections
 import sys
-from collections.abc import Sequence
 from typing import Any
 
 from builtin_interfaces.msg import Time
@@ -36,7 +35,7 @@ from turning_force.core.kernel.chain import command_for
 from turning_force.nodes.convert import estimate_from_msg, stamp_to_ns
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import STREAM_DEPTH, run_nodes
+from turning_force.nodes.spin import STREAM_DEPTH, node_main
 from turning_force.nodes.spindle import TOOL_TOPIC, SpindleSpeedInput
 
 __all__ = ['REFERENCE_QOS', 'ForceControllerNode', 'main']
@@ -159,8 +158,7 @@ class ForceControllerNode(Node):
                 self.diagnostics.warn(text, log=True)
 
 
-def main(args: Sequence[str] | None = None) -> int:
-    return run_nodes(lambda: [ForceControllerNode()], args)
+main = node_main(ForceControllerNode)
 
 
 if __name__ == '__main__':

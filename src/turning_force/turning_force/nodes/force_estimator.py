@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Sequence
 from typing import Any
 
 from rclpy.node import Node
@@ -31,7 +30,7 @@ from turning_force.nodes.convert import (
 )
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import STREAM_DEPTH, run_nodes, timer_callback
+from turning_force.nodes.spin import STREAM_DEPTH, node_main, timer_callback
 
 __all__ = ['ForceEstimatorNode', 'main']
 
@@ -125,8 +124,7 @@ class ForceEstimatorNode(Node):
                 're-commission', log=True)
 
 
-def main(args: Sequence[str] | None = None) -> int:
-    return run_nodes(lambda: [ForceEstimatorNode()], args)
+main = node_main(ForceEstimatorNode)
 
 
 if __name__ == '__main__':

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -54,7 +53,7 @@ from turning_force.nodes.convert import (
 )
 from turning_force.nodes.diagnostics import AnswerLatency, Diagnostics
 from turning_force.nodes.parameters import SettingsParameters, declare
-from turning_force.nodes.spin import STREAM_DEPTH, run_nodes, timer_callback
+from turning_force.nodes.spin import STREAM_DEPTH, node_main, timer_callback
 from turning_force.nodes.spindle import SPINDLE_SPEED_TOPIC, TOOL_TOPIC
 
 __all__ = ['LatheSimNode', 'main']
@@ -248,8 +247,7 @@ class LatheSimNode(Node):
         return block
 
 
-def main(args: Sequence[str] | None = None) -> int:
-    return run_nodes(lambda: [LatheSimNode()], args)
+main = node_main(LatheSimNode)
 
 
 if __name__ == '__main__':

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import sys
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import Any
 
 import foxglove
@@ -43,7 +43,7 @@ from turning_force.core.experiment import ViewSettings
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
 from turning_force.nodes.session_recorder import GRAPH_TOPICS, LATCHED_TOPICS, msgtype, topic_qos
-from turning_force.nodes.spin import NodeTime, run_nodes, timer_callback
+from turning_force.nodes.spin import NodeTime, node_main, timer_callback
 from turning_force.session.bag import SETTINGS_TOPIC, schema
 
 __all__ = ['BAND_TOPIC', 'EVENT_TOPICS', 'LiveViewNode', 'Throttle', 'main', 'view_topic']
@@ -197,8 +197,7 @@ class LiveViewNode(Node):
         super().destroy_node()
 
 
-def main(args: Sequence[str] | None = None) -> int:
-    return run_nodes(lambda: [LiveViewNode()], args)
+main = node_main(LiveViewNode)
 
 
 if __name__ == '__main__':

@@ -31,7 +31,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import sys
-from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -77,7 +76,7 @@ from turning_force.nodes.convert import (
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.parameters import SettingsParameters, declare
-from turning_force.nodes.spin import STREAM_DEPTH, NodeTime, run_nodes, timer_callback
+from turning_force.nodes.spin import STREAM_DEPTH, NodeTime, node_main, timer_callback
 from turning_force.nodes.spindle import TOOL_TOPIC, SpindleSpeedInput
 
 __all__ = ['BridgeStartError', 'PmcBridgeNode', 'SimulatedPmc', 'main']
@@ -669,8 +668,7 @@ class PmcBridgeNode(LifecycleNode):
                 self.diagnostics.set_value(f'input {name}', value)
 
 
-def main(args: Sequence[str] | None = None) -> int:
-    return run_nodes(lambda: [PmcBridgeNode()], args)
+main = node_main(PmcBridgeNode)
 
 
 if __name__ == '__main__':

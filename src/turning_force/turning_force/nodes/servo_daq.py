@@ -16,7 +16,6 @@ from __future__ import annotations
 import contextlib
 import sys
 import threading
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -30,7 +29,7 @@ from turning_force.core.plant.drive import CurrentBlock
 from turning_force.nodes.convert import block_to_servo_currents, ns_to_stamp
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import STREAM_DEPTH, run_nodes
+from turning_force.nodes.spin import STREAM_DEPTH, node_main
 
 __all__ = ['DaqError', 'NiDaq', 'ServoDaqNode', 'block_message', 'main']
 
@@ -182,8 +181,7 @@ class ServoDaqNode(Node):
         super().destroy_node()
 
 
-def main(args: Sequence[str] | None = None) -> int:
-    return run_nodes(lambda: [ServoDaqNode()], args)
+main = node_main(ServoDaqNode)
 
 
 if __name__ == '__main__':

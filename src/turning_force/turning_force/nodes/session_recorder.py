@@ -19,38 +19,27 @@ from __future__ import annotations
 import contextlib
 import datetime
 import functools
+import importlib
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64, String
-from turning_force_msgs.msg import (
-    CutRecord,
-    CuttingState,
-    FeedCommand,
-    FeedOverride,
-    ForceEstimate,
-    MachineInputs,
-    ServoCurrents,
-)
+from std_msgs.msg import String
 
 from turning_force.core.experiment import SETTINGS_OF, RecorderSettings
 from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.force_controller import REFERENCE_QOS
 from turning_force.nodes.parameters import SettingsParameters
-from turning_force.nodes.spin import STREAM_DEPTH, NodeTime, run_nodes, timer_callback
+from turning_force.nodes.spin import STREAM_DEPTH, NodeTime, node_main, timer_callback
 from turning_force.session.bag import (
     CUSTOM_EXPERIMENT,
     CUSTOM_PARAMETERS,
     CUSTOM_VERSIONS,
+    GRAPH_TYPES,
     SETTINGS_TOPIC,
     BagError,
     SessionWriter,
@@ -62,20 +51,22 @@ from turning_force.session.bag import (
 __all__ = ['GRAPH_TOPICS', 'LATCHED_TOPICS', 'SessionRecorderNode', 'main', 'msgtype',
            'topic_qos']
 
-GRAPH_TOPICS: dict[str, type] = {
-    'servo/currents': ServoCurrents,
-    'servo/joint_state': JointState,
-    'sim/cutting_state': CuttingState,
-    'force/estimate': ForceEstimate,
-    'force/reference': Float64,
-    'control/feed_command': FeedCommand,
-    'pmc/feed_override': FeedOverride,
-    'machine/inputs': MachineInputs,
-    'machine/spindle_speed': Float64,
-    'pmc/cuts': CutRecord,
-    '/diagnostics': DiagnosticArray,
-    'force/measured': WrenchStamped,
-}
+
+def msgtype(cls: type) -> str:
+    """``turning_force_msgs.msg.ServoCurrents`` -> ``turning_force_msgs/msg/ServoCurrents``."""
+    return f'{cls.__module__.split(".")[0]}/msg/{cls.__name__}'
+
+
+def message_class(msgtype: str) -> type:
+    """``turning_force_msgs/msg/ServoCurrents`` -> its generated class (:func:`msgtype`'s
+    inverse)."""
+    package, _, name = msgtype.split('/')
+    cls: type = getattr(importlib.import_module(f'{package}.msg'), name)
+    return cls
+
+
+GRAPH_TOPICS: dict[str, type] = {topic: message_class(msgtype)
+                                  for topic, msgtype in GRAPH_TYPES.items()}
 
 # Published once, transient-local, so that a late joiner gets the last one (a latched topic).
 LATCHED_TOPICS = frozenset({'force/reference', SETTINGS_TOPIC})
@@ -85,11 +76,6 @@ def topic_qos(topic: str) -> QoSProfile:
     """The QoS a subscriber to one of :data:`GRAPH_TOPICS` takes: transient-local for the
     latched ones, a queue of 100 for the others (a second of blocks at 10 ms)."""
     return REFERENCE_QOS if topic in LATCHED_TOPICS else QoSProfile(depth=STREAM_DEPTH)
-
-
-def msgtype(cls: type) -> str:
-    """``turning_force_msgs.msg.ServoCurrents`` -> ``turning_force_msgs/msg/ServoCurrents``."""
-    return f'{cls.__module__.split(".")[0]}/msg/{cls.__name__}'
 
 
 class SessionRecorderNode(Node):
@@ -251,8 +237,7 @@ class SessionRecorderNode(Node):
         super().destroy_node()
 
 
-def main(args: Sequence[str] | None = None) -> int:
-    return run_nodes(lambda: [SessionRecorderNode()], args)
+main = node_main(SessionRecorderNode)
 
 
 if __name__ == '__main__':

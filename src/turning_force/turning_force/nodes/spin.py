@@ -35,8 +35,8 @@ from turning_force.core.errors import ConfigError, TurningForceError
 STREAM_DEPTH = 100
 
 __all__ = ['EXECUTOR_ENV', 'MAX_DOMAIN_ID', 'RT_PRIORITY_ENV', 'STREAM_DEPTH', 'NodeTime',
-           'check_domain_id', 'freeze_heap', 'make_executor', 'real_time_priority', 'run_nodes',
-           'timer_callback']
+           'check_domain_id', 'freeze_heap', 'make_executor', 'node_main', 'real_time_priority',
+           'run_nodes', 'timer_callback']
 
 # ``TURNING_FORCE_EXECUTOR=single`` runs ``ros2 run`` nodes on rclpy's SingleThreadedExecutor
 # instead of its EventsExecutor (ten times the message rate here; see ROS2_FROM_PYPI.md).
@@ -154,6 +154,13 @@ def freeze_heap() -> None:
     """
     gc.collect()
     gc.freeze()
+
+
+def node_main(node: Callable[[], Node]) -> Callable[..., int]:
+    """A node's console entry point: ``main(args)`` spins the one node ``node()`` makes."""
+    def main(args: Sequence[str] | None = None) -> int:
+        return run_nodes(lambda: [node()], args)
+    return main
 
 
 def run_nodes(make: Callable[[], list[Node]], args: Sequence[str] | None = None) -> int:

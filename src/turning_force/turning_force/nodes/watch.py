@@ -14,7 +14,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from std_msgs.msg import Float64
 from turning_force_msgs.msg import (
@@ -25,19 +25,13 @@ from turning_force_msgs.msg import (
     ForceEstimate,
 )
 
-from turning_force.nodes.session_recorder import topic_qos
+from turning_force.nodes.session_recorder import GRAPH_TOPICS, topic_qos
 
 __all__ = ['HISTORY', 'WATCHED_TOPICS', 'LiveState', 'WatchNode']
 
-WATCHED_TOPICS: dict[str, type] = {
-    'force/estimate': ForceEstimate,
-    'force/reference': Float64,
-    'control/feed_command': FeedCommand,
-    'pmc/feed_override': FeedOverride,
-    'sim/cutting_state': CuttingState,
-    'pmc/cuts': CutRecord,
-    '/diagnostics': DiagnosticArray,
-}
+WATCHED_TOPICS: dict[str, type] = {topic: GRAPH_TOPICS[topic] for topic in (
+    'force/estimate', 'force/reference', 'control/feed_command', 'pmc/feed_override',
+    'sim/cutting_state', 'pmc/cuts', '/diagnostics')}
 HISTORY = 200   # force estimates kept for the trace (2 s at 10 ms)
 
 

@@ -29,6 +29,7 @@ import importlib.util
 import json
 import os
 import platform
+import struct
 import threading
 import time
 import zlib
@@ -52,22 +53,14 @@ from rosbags.interfaces import (
 )
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.rosbag2.errors import WriterError
-from rosbags.rosbag2.storage_mcap import (
-    McapWriter,
-    PendingChunk,
-    write_record,
-    write_string,
-    write_uint16,
-    write_uint32,
-    write_uint64,
-)
+from rosbags.rosbag2.storage_mcap import McapWriter, PendingChunk, write_record
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from turning_force.core.errors import ConfigError, TurningForceError
 
 __all__ = ['CUSTOM_END', 'CUSTOM_EXPERIMENT', 'CUSTOM_PARAMETERS', 'CUSTOM_PLANNED',
-           'CUSTOM_RECORDING', 'CUSTOM_REPAIR', 'CUSTOM_STARTED', 'CUSTOM_VERSIONS',
+           'CUSTOM_RECORDING', 'CUSTOM_REPAIR', 'CUSTOM_STARTED', 'CUSTOM_VERSIONS', 'GRAPH_TYPES',
            'SETTINGS_TOPIC', 'SETTINGS_TYPE', 'BagError', 'SessionWriter', 'schema',
            'settings_message', 'settings_text', 'software_versions', 'stopped_by', 'typestore']
 
@@ -90,6 +83,22 @@ CUSTOM_END = 'turning_force.end_json'
 # The topic the custom data is recorded on (relative: a namespaced graph's own).
 SETTINGS_TOPIC = 'session/settings'
 SETTINGS_TYPE = 'std_msgs/msg/String'
+# The graph's topics (relative: a namespaced graph's own; /diagnostics is global) and their
+# types: what session_recorder subscribes and a session holds.
+GRAPH_TYPES: dict[str, str] = {
+    'servo/currents': 'turning_force_msgs/msg/ServoCurrents',
+    'servo/joint_state': 'sensor_msgs/msg/JointState',
+    'sim/cutting_state': 'turning_force_msgs/msg/CuttingState',
+    'force/estimate': 'turning_force_msgs/msg/ForceEstimate',
+    'force/reference': 'std_msgs/msg/Float64',
+    'control/feed_command': 'turning_force_msgs/msg/FeedCommand',
+    'pmc/feed_override': 'turning_force_msgs/msg/FeedOverride',
+    'machine/inputs': 'turning_force_msgs/msg/MachineInputs',
+    'machine/spindle_speed': 'std_msgs/msg/Float64',
+    'pmc/cuts': 'turning_force_msgs/msg/CutRecord',
+    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
+    'force/measured': 'geometry_msgs/msg/WrenchStamped',
+}
 # Latched, as rosbag2 records a transient-local publisher (``ros2 bag play`` republishes it so).
 LATCHED = Qos(QosHistory.UNKNOWN, 0, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL,
               QosTime(2147483647, 4294967295), QosTime(2147483647, 4294967295),
@@ -181,15 +190,12 @@ class _CrcMcapWriter(McapWriter):
         """rosbags' ``close_chunk`` with the CRC filled in, and the message indexes written as
         arrays (a chunk holds thousands of messages)."""
         chunk = self.chunk
-        crc = zlib.crc32(chunk.bio.getbuffer())
-        rec = BytesIO()
-        write_uint64(rec, chunk.message_start_time)
-        write_uint64(rec, chunk.message_end_time)
-        write_uint64(rec, chunk.bio.tell())
-        write_uint32(rec, crc)
+        size, name = chunk.bio.tell(), self.compression.encode()
+        times = (chunk.message_start_time, chunk.message_end_time)
         compressed = self.compressor(chunk.bio.getvalue())
-        write_string(rec, self.compression)
-        write_uint64(rec, len(compressed))
+        rec = BytesIO()   # the chunk: times, sizes and CRC, compression, the records
+        rec.write(struct.pack('<QQQII', *times, size, zlib.crc32(chunk.bio.getbuffer()),
+                              len(name)) + name + struct.pack('<Q', len(compressed)))
         rec.write(compressed)
         chunk_start = self.bio.tell()
         write_record(self.bio, 0x06, rec)
@@ -203,23 +209,14 @@ class _CrcMcapWriter(McapWriter):
             entries = entries[np.argsort(entries[:, 1], kind='stable')]   # in file order
             offsets.append((cid, self.bio.tell()))
             rec = BytesIO()
-            write_uint16(rec, cid)
-            write_uint32(rec, entries.size * 8)
-            rec.write(entries.astype('<u8').tobytes())
+            rec.write(struct.pack('<HI', cid, entries.size * 8) + entries.astype('<u8').tobytes())
             write_record(self.bio, 0x07, rec)
-        rec = BytesIO()
-        write_uint64(rec, chunk.message_start_time)
-        write_uint64(rec, chunk.message_end_time)
-        write_uint64(rec, chunk_start)
-        write_uint64(rec, chunk_end - chunk_start)
-        write_uint32(rec, len(offsets) * 10)
-        for cid, offset in offsets:
-            write_uint16(rec, cid)
-            write_uint64(rec, offset)
-        write_uint64(rec, self.bio.tell() - chunk_end)
-        write_string(rec, self.compression)
-        write_uint64(rec, len(compressed))
-        write_uint64(rec, chunk.bio.tell())
+        rec = BytesIO()   # its index entry, for the summary
+        rec.write(struct.pack('<QQQQI', *times, chunk_start, chunk_end - chunk_start,
+                              len(offsets) * 10))
+        rec.write(b''.join(struct.pack('<HQ', cid, offset) for cid, offset in offsets))
+        rec.write(struct.pack('<QI', self.bio.tell() - chunk_end, len(name)) + name
+                  + struct.pack('<QQ', len(compressed), size))
         self.chunks.append(rec)
         self.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
         self._bulk = {}

@@ -33,7 +33,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cache, cached_property
 from pathlib import Path
-from typing import Any, cast, overload
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -63,6 +63,7 @@ from turning_force.session.bag import (
     CUSTOM_RECORDING,
     CUSTOM_REPAIR,
     CUSTOM_VERSIONS,
+    GRAPH_TYPES,
     SETTINGS_TOPIC,
     SETTINGS_TYPE,
     BagError,
@@ -81,13 +82,7 @@ IntArray = npt.NDArray[np.int64]
 
 ANSWERS = ('force/estimate', 'control/feed_command', 'pmc/feed_override', 'sim/cutting_state')
 READ = ('servo/currents', *ANSWERS, 'pmc/cuts')
-MSGTYPES = {
-    'servo/currents': 'turning_force_msgs/msg/ServoCurrents',
-    'force/estimate': 'turning_force_msgs/msg/ForceEstimate',
-    'control/feed_command': 'turning_force_msgs/msg/FeedCommand',
-    'pmc/feed_override': 'turning_force_msgs/msg/FeedOverride',
-    'sim/cutting_state': 'turning_force_msgs/msg/CuttingState',
-}
+MSGTYPES = {topic: GRAPH_TYPES[topic] for topic in ('servo/currents', *ANSWERS)}
 # Each signal of a session (per block, NaN where no message answers it): the answering topic
 # and the field it comes from. The decision's inputs and outputs are NaN in sessions recorded
 # before FeedOverride carried them.
@@ -526,7 +521,7 @@ class Session:
     @property
     def blocks(self) -> Sequence[CurrentBlock]:
         """The blocks one by one (views of :attr:`currents`), for callers that take blocks."""
-        return self.ragged if self.ragged is not None else _Blocks(self.currents)
+        return self.ragged if self.ragged is not None else self.currents or []
 
     @property
     def block_starts_s(self) -> FloatArray:
@@ -556,30 +551,6 @@ class Session:
     @property
     def versions(self) -> dict[str, str]:
         return dict(json.loads(self.custom_data.get(CUSTOM_VERSIONS, '{}')))
-
-
-class _Blocks(Sequence[CurrentBlock]):
-    """:class:`CurrentArrays` as a sequence of :class:`CurrentBlock` views, made on access."""
-
-    def __init__(self, currents: CurrentArrays | None) -> None:
-        self._currents = currents
-
-    def __len__(self) -> int:
-        return 0 if self._currents is None else len(self._currents)
-
-    @overload
-    def __getitem__(self, k: int) -> CurrentBlock: ...
-
-    @overload
-    def __getitem__(self, k: slice) -> list[CurrentBlock]: ...
-
-    def __getitem__(self, k: int | slice) -> CurrentBlock | list[CurrentBlock]:
-        if isinstance(k, slice):
-            return [self[i] for i in range(*k.indices(len(self)))]
-        n = len(self)
-        if not -n <= k < n or self._currents is None:
-            raise IndexError(f'block {k} of {n}')
-        return self._currents.block(k % n)
 
 
 # Settings added after sessions were recorded whose default behaves differently from what

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -42,9 +42,10 @@ REPLAY_CHUNK_BLOCKS = 20000
 
 
 @dataclass(frozen=True)
-class CurrentArrays:
+class CurrentArrays(Sequence[CurrentBlock]):
     """A run of DAQ blocks as arrays: ``n`` blocks of ``m`` samples, sample ``j`` of block ``k``
-    taken at ``t0_s[k] + j * sample_period_s`` (the core side of ``servo/currents``)."""
+    taken at ``t0_s[k] + j * sample_period_s`` (the core side of ``servo/currents``); as a
+    sequence, its blocks one by one (:meth:`block`'s views, made on access)."""
 
     t0_s: FloatArray                 # (n,) time of each block's first sample [s]
     sample_period_s: float           # [s]
@@ -55,6 +56,17 @@ class CurrentArrays:
 
     def __len__(self) -> int:
         return int(self.t0_s.size)
+
+    @overload
+    def __getitem__(self, k: int) -> CurrentBlock: ...
+
+    @overload
+    def __getitem__(self, k: slice) -> list[CurrentBlock]: ...
+
+    def __getitem__(self, k: int | slice) -> CurrentBlock | list[CurrentBlock]:
+        if isinstance(k, slice):
+            return [self.block(i) for i in range(*k.indices(len(self)))]
+        return self.block(range(len(self))[k])   # a range raises IndexError beyond the blocks
 
     @property
     def samples_per_block(self) -> int:
@@ -503,7 +515,7 @@ def run_core(experiment: Experiment) -> CoreRun:
     DAQ sample the plant produced, the chain's estimate, command and decision for each block, and
     the plant's state at each block's end; ``result`` is what simulate gives, bit for bit (its
     ``realtime_factor`` aside)."""
-    from turning_force.core.kernel.simulate import CoreArrays, run_loop
+    from turning_force.core.kernel.simulate import run_loop
     from turning_force.core.pmc.gate import cut_record
 
     jit = kernel.load()
@@ -512,9 +524,8 @@ def run_core(experiment: Experiment) -> CoreRun:
     m = plant_settings.samples_per_block
     currents = CurrentArrays.empty(n, m, 1.0 / plant_settings.sample_rate_hz)
     rows = np.zeros((n, jit.CHAIN_COLUMNS))
-    kept = CoreArrays(currents.t0_s, currents.phase_u_a, currents.phase_v_a,
-                      currents.rotor_angle_rad, currents.feed_rate_mm_min, rows)
-    result = run_loop(experiment, kept)
+    result = run_loop(experiment, (currents.t0_s, currents.phase_u_a, currents.phase_v_a,
+                                   currents.rotor_angle_rad, currents.feed_rate_mm_min, rows))
     chain = ChainTrace._empty(n)
     table = get_table(experiment.bridge.override_table)
     _rows_into(jit, rows, chain, 0, table, experiment.estimator, currents)

@@ -24,7 +24,7 @@ from turning_force.core.metrics import compute_metrics
 from turning_force.core.plant.lathe import LathePlant
 from turning_force.core.pmc.gate import CUT_FIELDS
 
-__all__ = ['CoreArrays', 'SimulationResult', 'simulate']
+__all__ = ['SimulationResult', 'simulate']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -60,20 +60,6 @@ class SimulationResult:
     drift: str = ''
 
 
-@dataclass
-class CoreArrays:
-    """Where a run keeps every block besides its trace (``jit.run_core_kept``): the blocks'
-    first stamps (n,), the samples u, v, angle, feed rate (n, m each) and the chain's rows
-    (n, ``jit.CHAIN_COLUMNS``)."""
-
-    t0_s: FloatArray
-    phase_u_a: FloatArray
-    phase_v_a: FloatArray
-    rotor_angle_rad: FloatArray
-    feed_rate_mm_min: FloatArray
-    rows: FloatArray
-
-
 # Blocks per call of the kernel: the plant's noise for them is drawn in advance.
 CHUNK_BLOCKS = 4096
 
@@ -83,8 +69,10 @@ def simulate(experiment: Experiment) -> SimulationResult:
     return run_loop(experiment)
 
 
-def run_loop(experiment: Experiment, kept: CoreArrays | None = None) -> SimulationResult:
-    """:func:`simulate`, keeping every block in ``kept`` as well where it is given."""
+def run_loop(experiment: Experiment, kept: tuple[FloatArray, ...] = ()) -> SimulationResult:
+    """:func:`simulate`, keeping every block as well where ``kept`` gives the arrays to keep it
+    in (``jit.run_core_kept``): the blocks' first stamps (n,), the samples u, v, angle and feed
+    rate (n, m each) and the chain's rows (n, ``jit.CHAIN_COLUMNS``)."""
     wall_start = time.perf_counter()
     jit = kernel.load()
     steps = round(experiment.run.duration_s / experiment.run.control_period_s)
@@ -109,7 +97,7 @@ def run_loop(experiment: Experiment, kept: CoreArrays | None = None) -> Simulati
     for start in range(0, steps, CHUNK_BLOCKS):
         end = min(start + CHUNK_BLOCKS, steps)
         noise_u, noise_v, noise_f, noise_fr = plant.draw_noise(end - start)
-        if kept is None:
+        if not kept:
             applied = jit.run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr,
                                    ep, es, cp, cs, clevels, gp, gs, glevels, ctools, gtools,
                                    start, end, applied, last, rows, inputs, cuts, ncuts)
@@ -117,9 +105,7 @@ def run_loop(experiment: Experiment, kept: CoreArrays | None = None) -> Simulati
             applied = jit.run_core_kept(pp, ps, times, depths, noise_u, noise_v, noise_f,
                                         noise_fr, ep, es, cp, cs, clevels, gp, gs, glevels,
                                         ctools, gtools, start, end, applied, last, rows,
-                                        inputs, cuts, ncuts,
-                                        kept.t0_s, kept.phase_u_a, kept.phase_v_a,
-                                        kept.rotor_angle_rad, kept.feed_rate_mm_min, kept.rows)
+                                        inputs, cuts, ncuts, *kept)
     trace = {name: rows[:, i].copy() for i, name in enumerate(TRACE_NAMES)}
     # The metrics' reference is the experiment's, also where a learning cut sets another; with
     # a tools file, each tool's (the controller's, block by block).

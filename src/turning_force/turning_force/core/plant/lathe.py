@@ -228,7 +228,6 @@ def plant_block(pp: Arr, ps: Arr, times: Arr, depths: Arr, override_pct: float, 
                       lo, u, v, angle, feed_rate, truth)
 
 
-
 class LathePlant:
     """The simulated lathe, stepped one control block at a time.
 

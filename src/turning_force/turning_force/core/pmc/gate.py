@@ -116,7 +116,6 @@ DEC_FIELDS = 12
  GD_RISE, GD_FOLLOW, GD_TOOL) = range(18)
 
 
-
 # --- the gate: the safety gate and the shop floor (core/pmc.py, core/shopfloor.py) ---------
 
 @compiled
@@ -668,9 +667,11 @@ def gate_control(gp: Arr, gs: Arr, t: float, what: int, cut: Arr) -> None:
         gate_close(gp, gs, cut)
 
 
-# --- the core loop (core/simulate.py) -------------------------------------------------------
+# --- for Python: the gate one block at a time (the bridge) ---------------------------------
 
-
+def _state_flag(slot: int, doc: str) -> property:
+    """A read-only flag of the gate's state: ``bool(state[slot])``."""
+    return property(lambda gate: bool(gate._state[slot]), doc=doc)
 
 
 class OverrideGate:
@@ -699,18 +700,13 @@ class OverrideGate:
         if t_s is not None:
             self.start(t_s)
 
-    @property
-    def armed(self) -> bool:
-        return bool(self._state[GS_ARMED])
-
-    @property
-    def started(self) -> bool:
-        return bool(self._state[GS_STARTED])
-
-    @property
-    def engaged(self) -> bool:
-        """Whether the cut detector has the tool in the cut."""
-        return bool(self._state[GS_ENGAGED])
+    armed = _state_flag(GS_ARMED, 'Whether the gate is armed.')
+    started = _state_flag(GS_STARTED, 'Whether the gate has started (its first callback).')
+    engaged = _state_flag(GS_ENGAGED, 'Whether the cut detector has the tool in the cut.')
+    tool_unknown = _state_flag(GS_TOOL_BAD, 'Whether the tool in use has no section in the tools '
+                               'file (the feed handed back).')
+    feed_not_following = _state_flag(GS_F_TRIPPED, 'Whether the feed-follow check has stopped '
+                                     'regulation (until re-armed).')
 
     def start(self, t_s: float) -> None:
         """Begin at ``t_s`` (armed if the settings say so). A node starts its gate at its first
@@ -744,11 +740,6 @@ class OverrideGate:
     def disarm(self) -> None:
         self._state[GS_ARMED] = 0.0
 
-    @property
-    def holding(self) -> bool:
-        """Whether an overload hold is in force."""
-        return bool(self._state[GS_HOLD])
-
     def on_inputs(self, inputs: InputValues) -> None:
         """The machine's inputs as last read (program enable, threading, operator dial; the
         spindle speed is :meth:`on_feed`'s, and left out of the decisions, as FeedOverride
@@ -763,11 +754,6 @@ class OverrideGate:
                              float(inputs.tool_number))
 
     @property
-    def tool_unknown(self) -> bool:
-        """Whether the tool in use has no section in the tools file (the feed handed back)."""
-        return bool(self._state[GS_TOOL_BAD])
-
-    @property
     def tool_number(self) -> int | None:
         """The tool in use, as the machine's tool input last said (None: not given)."""
         tool = float(self._state[GS_TOOL])
@@ -778,11 +764,6 @@ class OverrideGate:
         the spindle speed [rpm] (NaN: spindle_speed_rpm): :func:`gate_feed`."""
         gate_feed_block(self._params, self._state, float(feed_rate_mm_min),
                         float(spindle_speed_rpm))
-
-    @property
-    def feed_not_following(self) -> bool:
-        """Whether the feed-follow check has stopped regulation (until re-armed)."""
-        return bool(self._state[GS_F_TRIPPED])
 
     def on_command(self, requested_pct: float, t_s: float, reachable: bool | None = None) -> None:
         """The controller's request; ``reachable``, its flag, goes to the cut log."""
