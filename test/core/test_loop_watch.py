@@ -16,6 +16,8 @@ from test_kernel import EXPERIMENTS, FIG8
 
 from turning_force.commands import population
 from turning_force.core.control import make_controller
+from turning_force.core.control.law import CS_O_CROSSOVER
+from turning_force.core.control.update import DETUNE_RATIO
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import Experiment, load_experiment
 from turning_force.core.kernel.simulate import SimulationResult, simulate
@@ -152,8 +154,18 @@ def test_the_reaction_holds_across_an_interrupted_cut():
     (7, 6), (7, 33),   # violent cycles whose troughs leave the cut: once never alarmed
     (7, 9), (2, 17),   # cycles that start at a depth step: once alarmed 2.5 and 2.2 s after it
     (15, 1), (15, 18),   # long jobs on slow loops: once left at 81 and 65 N after the reaction
+    # a 3.5 mm step's return of 705 N, then a cycle of 175 N swings: the third swing was held
+    # to 0.3 of the kick's return, and the alarm came 2.46 s after the onset
+    (15, 3),
+    # a growing cycle on a step's settling mean: a swing of 0.69 of the one before restarted
+    # the count, alarmed 2.05 s after the onset
+    (7, 22),
+    # long jobs on light cutting exponents (g 0.61, 0.78, 0.93): the reaction's integral at
+    # half the crossover meant, still 34-39 N off 2 s after a depth step of x0.4 or x3
+    (15, 7), (15, 12), (7, 57),
 ], ids=['trough out of the cut', 'interrupted, trough out of the cut', 'deep step',
-        'steps', 'long job, 141 ms', 'long job, 130 ms'])
+        'steps', 'long job, 141 ms', 'long job, 130 ms', 'kick larger than the cycle',
+        'drifting mean', 'long job, g 0.61', 'long job, g 0.78', 'long job, g 0.93'])
 def test_generated_machines_are_alarmed_in_time_and_calmed(seed, index):
     # Machines of the generated population (commands/population.py) of the classes the
     # detector once missed or the reaction once left cycling, judged as the issue does: the
@@ -182,6 +194,42 @@ def test_no_alarm_on_a_loop_that_does_not_oscillate(sets):
     result = run(*sets)
     assert oscillation_onset_s(result) is None
     assert result.metrics['oscillation_alarms'] == 0.0
+
+
+def test_no_alarm_while_the_loop_is_open():
+    # The shop-floor program: a depth step, adaptive feed disabled before the exit, a threading
+    # pass with the bridge stood down, and the dial at 40 % for a second. The force swings at
+    # each (242, 197, 428 and 185 N, 1-1.5 s apart), with the PMC holding a level of its own
+    # for three of them: the program's events, no limit cycle (the drift-free test on a
+    # period's peak to peak counted them as one, alarmed at 13 s in the threading pass).
+    experiment = load_experiment(EXPERIMENTS / 'shopfloor.yaml')
+    assert simulate(experiment).metrics['oscillation_alarms'] == 0.0
+
+
+def test_the_detune_reaction_runs_at_the_crossover_the_cycle_gives():
+    # A force error cycling at 200 N and 0.6 s (the controller's output not fed back: the
+    # cycle stays whatever it asks) raises the alarm on its fourth swing; the detune reaction's
+    # crossover is then w_u / DETUNE_RATIO. The alarm's own count once halved it the period
+    # after it was raised: every reaction ran at half the crossover meant.
+    experiment = load_experiment(FIG8).with_sets([PRODUCT_REACTION])
+    controller = make_controller(experiment.controller)
+    state = controller.arrays[1]
+    dt, period_s = experiment.controller.control_period_s, 0.6
+    w_u = 2.0 * np.pi / period_s
+    alarm_k = None
+    for k in range(400):
+        phase = w_u * k * dt
+        # from a trough: the detector's first swing is a whole half-period
+        out = controller.update(500.0 - 200.0 * np.cos(phase), 200.0 * w_u * np.sin(phase))
+        controller.applied(out.override_pct, True, int(Reason.NORMAL))
+        if out.oscillating and alarm_k is None:
+            alarm_k = k
+        if alarm_k is not None and k >= alarm_k + 10:   # four more swings would take 1.2 s
+            break
+    assert alarm_k is not None and alarm_k * dt < 3.0 * period_s
+    # the half-periods are read at turning points found one control period late at most:
+    # 0.01 s in 0.3 s, 4 %
+    assert state[CS_O_CROSSOVER] == pytest.approx(w_u / DETUNE_RATIO, rel=0.04)
 
 
 @pytest.mark.parametrize('machine', ['second_order_slow', 'kienzle_0p6_noisy_dead_time'])

@@ -52,8 +52,11 @@ from turning_force.core.control.law import (
     CS_O_LAST,
     CS_O_LOG_FORCE,
     CS_O_MEAN,
+    CS_O_OPEN,
+    CS_O_PAIRED,
     CS_O_SINCE,
     CS_O_SWING,
+    CS_O_SWING_BEFORE,
     CS_O_WAIT,
     CS_PINNED,
     CS_RESETS,
@@ -73,25 +76,33 @@ from turning_force.core.control.law import (
 __all__ = ['control_applied', 'control_step', 'control_tool', 'controller_applied',
            'controller_start', 'controller_tool', 'controller_update']
 
-# FeedOverride.REASON_NORMAL: the controller's request went through as asked.
-REASON_NORMAL = 0
+# FeedOverride.REASON_NORMAL: the controller's request went through as asked; REASON_RISE_LIMIT
+# and REASON_FEED_FLOOR: it went through limited (its rise, its floor), the loop still closed.
+# Under any other reason the PMC holds a level of its own (the dial, a hold, the entry feed, a
+# stand-down for threading): the loop is open, and the force's swings there are the program's
+# (a depth step, the threading pass), no limit cycle, which the detector does not watch.
+REASON_NORMAL, REASON_RISE_LIMIT, REASON_FEED_FLOOR = 0, 9, 10
 # Reachability: the error's mean that says the force reached the reference, over this long (a
 # third of unreachable_after_s's default: a reference that comes within reach, a deeper cut,
 # un-flags in a few tenths of a second).
 REACH_MEAN_S = 0.3
 # The oscillation detector: a turning point is where the error has come back this fraction of
-# the alarm's swing from its extreme (hysteresis against noise); a counted swing is at least
-# DECAY of the one before (a transient's swings die away, a limit cycle's do not) and comes
-# HALF_MIN_S to HALF_MAX_S after it (noise turns faster; slower is no cycle: the fastest loops
-# of the generated population, no dead time and a 0.1 s servo, cycle at 0.07 s a half); the
-# mean level sent is taken over MEAN_S. After a kick (a depth step or an entry: a rise, then
-# a return larger than it, the override held at the table's end through both), the third
-# swing is measured against a return the kick, not the loop, made large: it counts from
-# KICK_DECAY of it, and the fourth is held to DECAY again. A linear loop's transient swings
-# shrink by the same ratio from the third on, so the fourth swing still tells a transient
-# from a cycle; a cycle that starts at a depth step is alarmed a half-period or two sooner,
-# within 2 s of the step where its period is up to about a second.
-OSC_HYSTERESIS, OSC_DECAY, OSC_KICK_DECAY, OSC_MEAN_S = 1.0 / 3.0, 0.7, 0.3, 1.0
+# the alarm's swing from its extreme (hysteresis against noise); a counted swing comes
+# HALF_MIN_S to HALF_MAX_S after the one before (noise turns faster; slower is no cycle: the
+# fastest loops of the generated population, no dead time and a 0.1 s servo, cycle at 0.07 s a
+# half) and does not die away (a transient's swings do, a limit cycle's do not): it is at least
+# DECAY of the one before, or with it at least DECAY of the two before. A swing runs from one
+# extreme to the next, so a mean level that drifts under the cycle (a depth step's transient
+# still settling) adds to every other swing and takes from the others: one of a growing cycle
+# measured 0.69 of the one before it (once alarmed 2.05 s after the onset); two swings
+# together, a period's peak to peak, carry no drift. After a kick (a depth step or an entry: a
+# rise, then a return larger than it, the override held at the table's end through both), the
+# third swing counts whatever its size: the kick, not the loop, made the two before it large
+# (a 3.5 mm step's return was 705 N, the cycle's swings 175 N: once alarmed 2.46 s after the
+# onset), and the fourth is held to DECAY of the third. A linear loop's transient swings shrink
+# by the same ratio from the third on, so the fourth swing still tells a transient from a
+# cycle. The mean level sent is taken over MEAN_S.
+OSC_HYSTERESIS, OSC_DECAY, OSC_MEAN_S = 1.0 / 3.0, 0.7, 1.0
 OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.07, 2.0
 # The detune reaction: the limit cycle's frequency w_u = 2 pi / T_u bounds the loop's. The
 # force being about proportional to the feed (F = K u, K set by the depth), the law works on
@@ -109,14 +120,20 @@ OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.07, 2.0
 # Measured on the generated population (seeds 15, 7, 5, 6, 8, 9: 330 oscillating runs): 258
 # calmed by the integral law on the linear error at w_u / 6, the log law without the
 # proportional part 187 of the 223 of seeds 15, 7, 5, 6 (169 before) at w_u / 4, and 312 of
-# 330 with it at w_u / 3 and DETUNE_P 0.4 (0.25 and 0.55 and w_u / 2.5 gave 298-311). The
-# ones left are long jobs on slow loops with a light cutting exponent (g about 0.6 halves the
-# loop's gain, d ln F = g d ln u).
+# 330 with it and DETUNE_P 0.4 at what was meant as w_u / 3 but ran at w_u / 6 (the alarm's own
+# count halved the crossover the period after it was raised). At w_u / 3 the reaction cycles
+# on its own on loops with g near 1 (44 and 50 of the 54 and 59 oscillating runs of seeds 15
+# and 7 calmed, against 49 and 53 at w_u / 6); the ones left at w_u / 6 are long jobs on slow
+# loops and light cutting exponents (g about 0.6 halves the loop's gain, d ln F = g d ln u),
+# still 20-60 N off the reference 2 s after a depth step of x0.4 or x3. A larger proportional
+# part takes more of each step at once: with DETUNE_P 0.55 (under the small-gain bound) and
+# w_u / 5, 53 and 56 of them (w_u / 4.5, 6, 7 and DETUNE_P 0.5, 0.7 gave 48-54 and 55-57), and
+# seeds 5 and 6 unchanged (50 of 53, 53 of 57).
 # (Relay auto-tuning's PI, Tyreus-Luyben's K_u / 3.2 and 2.2 T_u from the cycle read as a relay
 # experiment, was tried in its place: on the generated population it left the loops slower
 # after each depth step and fewer of them under the ripple bound: its integral time, 2.2 T_u,
 # is too long for a depth step every 3 s.)
-DETUNE_RATIO, DETUNE_P, LOG_FLOOR = 3.0, 0.4, 0.1
+DETUNE_RATIO, DETUNE_P, LOG_FLOOR = 5.0, 0.55, 0.1
 # The law starts from the level the force implies, the force being about proportional
 # to the feed: the level held scaled by ENTRY_SHARE F_ref / F, so that the force approaches from
 # below, after the gate has set the feed (the air, an entry, the dial), once the force has
@@ -179,21 +196,26 @@ def _recover(cp: np.ndarray, cs: np.ndarray, error: float, out: np.ndarray) -> N
 @compiled
 def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     """The error turned at ``extreme``: the swing from the turn before counts toward the
-    alarm if it is large, no smaller than OSC_DECAY of the one before (OSC_KICK_DECAY for the
-    third after a kick), and took OSC_HALF_MIN_S to OSC_HALF_MAX_S; otherwise the count starts
-    afresh."""
+    alarm if it is large, took OSC_HALF_MIN_S to OSC_HALF_MAX_S, and the cycle does not die
+    away: the last two swings together (a period's peak to peak) at least OSC_DECAY of the two
+    before; the third after a kick whatever its size against the kick's, the fourth at least
+    OSC_DECAY of the third. Otherwise the count starts afresh."""
     swing, half = abs(extreme - cs[CS_O_LAST]), cs[CS_O_SINCE]
+    last, before = cs[CS_O_SWING], cs[CS_O_SWING_BEFORE]
     counts = swing >= cp[C_OSC_SWING] and OSC_HALF_MIN_S <= half <= OSC_HALF_MAX_S
     kicked = cs[CS_O_COUNT] == 2.0 and cs[CS_O_GREW] != 0.0
-    decay = OSC_KICK_DECAY if kicked else OSC_DECAY
-    cs[CS_O_GREW] = 1.0 if swing >= cs[CS_O_SWING] else 0.0
-    if counts and cs[CS_O_COUNT] > 0.0 and swing >= decay * cs[CS_O_SWING]:
+    lasting = kicked or swing >= OSC_DECAY * last or (
+        cs[CS_O_PAIRED] != 0.0 and swing + last >= OSC_DECAY * (last + before))
+    cs[CS_O_GREW] = 1.0 if swing >= last else 0.0
+    cs[CS_O_PAIRED] = 0.0 if kicked else 1.0
+    if counts and cs[CS_O_COUNT] > 0.0 and lasting:
         cs[CS_O_COUNT] += 1.0
         cs[CS_O_HALVES] += half
     else:
         cs[CS_O_COUNT] = 1.0 if counts else 0.0
         cs[CS_O_HALVES] = half if counts else 0.0
-    cs[CS_O_LAST], cs[CS_O_SWING], cs[CS_O_SINCE] = extreme, swing, 0.0
+    cs[CS_O_LAST], cs[CS_O_SWING_BEFORE], cs[CS_O_SWING] = extreme, last, swing
+    cs[CS_O_SINCE] = 0.0
 
 
 @compiled
@@ -232,6 +254,7 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
     if cs[CS_O_DIR] == 0.0:
         cs[CS_O_DIR], cs[CS_O_EXT], cs[CS_O_LAST] = 1.0, error, error
         cs[CS_O_SWING], cs[CS_O_COUNT], cs[CS_O_SINCE] = 0.0, 0.0, 0.0
+        cs[CS_O_SWING_BEFORE], cs[CS_O_PAIRED] = 0.0, 1.0
         return
     h = OSC_HYSTERESIS * cp[C_OSC_SWING]
     rising = cs[CS_O_DIR] > 0.0
@@ -244,9 +267,9 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
     if cs[CS_O_COUNT] >= cp[C_OSC_COUNT]:
         if cs[CS_O_ALARM] == 0.0:
             _alarm(cp, cs, error)
-        else:   # the reaction's loop cycles too: its crossover halved, watched afresh
+        else:   # the reaction's loop cycles too: its crossover halved
             cs[CS_O_CROSSOVER] *= 0.5
-            cs[CS_O_COUNT] = 0.0
+        cs[CS_O_COUNT] = 0.0   # watched afresh (the swings that raised the alarm count once)
 
 
 @compiled
@@ -276,9 +299,10 @@ def _react(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> float:
 
 @compiled
 def _out_of_cut(cp: np.ndarray, cs: np.ndarray) -> None:
-    """A period out of the cut. The detector pauses: a cycle whose troughs carry the force
-    under the gate's exit threshold (``exit_force_n``) leaves the cut at each of them, and
-    the swing goes on from where the force left to where it comes back. Once no turn has come
+    """A period out of the cut, or with the loop open (the PMC holds a level of its own). The
+    detector pauses: a cycle whose troughs carry the force under the gate's exit threshold
+    (``exit_force_n``) leaves the cut at each of them, and the swing goes on from where the
+    force left to where it comes back. Once no turn has come
     for OSC_HALF_MAX_S (a swing that slow counts for nothing) the detector starts afresh at
     the next entry. The alarm and its reaction hold until the run ends or the tool changes
     (:func:`controller_tool`): a loop that cycled cycles again at the next entry, and finding
@@ -304,7 +328,7 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
     if not (math.isfinite(force) and math.isfinite(rate)):
         _recover(cp, cs, error, out)
         return
-    if cs[CS_ENGAGED] != 0.0:
+    if cs[CS_ENGAGED] != 0.0 and cs[CS_O_OPEN] == 0.0:
         _watch(cp, cs, error)
         out[OUT_OSC] = cs[CS_O_ALARM]
     else:
@@ -347,6 +371,8 @@ def controller_applied(cp: np.ndarray, cs: np.ndarray, applied: float, engaged: 
     the cut starts from the feed the tool meets the work with (the oscillation reaction's
     level too)."""
     cs[CS_ENGAGED] = 1.0 if engaged else 0.0
+    cs[CS_O_OPEN] = 0.0 if reason in (REASON_NORMAL, REASON_RISE_LIMIT, REASON_FEED_FLOOR) \
+        else 1.0
     drift_applied(cs[CS_DRIFT:CS_LAW], applied)
     if reason != REASON_NORMAL and math.isfinite(applied):
         cs[CS_HELD] = clip(cp, applied)
