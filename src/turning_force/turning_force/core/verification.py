@@ -8,16 +8,16 @@ for what a session cannot see (the sim-to-lathe gap, a drift by the next job: 20
 15 % on gains and time constants, 0.03 on the exponent, 20 % on the noise; issue 16's drifts,
 dead time +40 ms and gain +40 %, are within three of these).
 
-Two stages. First every candidate (:data:`CANDIDATES`: the predictive law's switching penalty
-and horizon, the sliding mode law's lambda and boundary layer, PI, each with the identified
-Kalman noise, half and a quarter of it) cuts the job on the identified plant alone: a sweep like
-the oracle's, on the model instead of the machine. Then the best four of each law there and the
+Two stages. First every candidate (:data:`CANDIDATES`: the predictive law's switching penalty and
+horizon, the sliding mode law's lambda and boundary layer, PI, each with the identified Kalman
+noise, half and a quarter of it) cuts the job on the identified plant alone: a sweep like the
+oracle's, on the model instead of the machine. Then the best four of each law there and the
 uncommissioned defaults cut it on every plant: the best two alone were often the same law's
 settings tuned tightest to the nominal plant, and on a servo drift of 1.28 (population seed 15
-machine #99) the pair held 30 and 25 of 51 plants where the third held 46. The choice scores each candidate by how far it
-is from the band: per plant ``steady / 5 N + max(0, ripple / 25 N - 1)`` (below 1 in band; the
-steady error first, as the oracle ranks), capped at 10, half the weight on the identified plant
-and half on the plants drawn about it.
+machine #99) the pair held 30 and 25 of 51 plants where the third held 46. The choice scores each
+candidate by how far it is from the band: per plant ``steady / 5 N + max(0, ripple / 25 N - 1)``
+(below 1 in band; the steady error first, as the oracle ranks), capped at 10, half the weight on
+the identified plant and half on the plants drawn about it.
 Two rules keep identification from writing settings predicted worse than none: a candidate that
 holds fewer plants in band than the defaults, or whose steady error on the identified plant is
 more than 1 N over theirs, is never chosen (the defaults then win). A count of plants in band

@@ -102,8 +102,8 @@ class Settings(ControllerBase):
 
 # Parameters (from C_LAW): exponent g, rho, the gain's weight, its first value, the engaged
 # fraction, dead time D and horizon H [periods], the lowest and highest level, the model's
-# order, the trend's weight (0: none), the calm periods it waits for after a jump, phi (3 x 3) and gamma (3) at the period, how many levels,
-# the levels.
+# order, the trend's weight (0: none), the calm periods it waits for after a jump, phi (3 x 3)
+# and gamma (3) at the period, how many levels, the levels.
 (P_EXPONENT, P_PENALTY, P_WEIGHT, P_GAIN0, P_ENGAGED, P_DEAD, P_HORIZON, P_LOW, P_HIGH,
  P_NX, P_TREND, P_CALM) = range(C_LAW, C_LAW + 12)
 P_PHI, P_GAMMA, P_COUNT, P_LEVELS = C_LAW + 12, C_LAW + 21, C_LAW + 24, C_LAW + 25
@@ -142,7 +142,8 @@ def fill(settings: ControllerBase) -> tuple[Sequence[float], int]:
            table.min_pct, table.max_pct, nx,
            (1.0 - math.exp(-period / c.mpc_trend_time_constant_s)
             if c.mpc_trend_time_constant_s > 0.0 else 0.0),
-           math.ceil(3.0 * c.mpc_gain_time_constant_s / period), *phi_flat, *gamma_flat, levels.size, *levels]
+           math.ceil(3.0 * c.mpc_gain_time_constant_s / period),
+           *phi_flat, *gamma_flat, levels.size, *levels]
     return own, 8 + dead
 
 
