@@ -31,7 +31,7 @@ from turning_force.core.estimation.settings import (
 from turning_force.core.plant.drive import CurrentBlock
 from turning_force.core.plant.feeddrive import friction_current
 
-__all__ = ['ForceEstimator', 'detail_text', 'estimator_update', 'rezeroed_text']
+__all__ = ['ForceEstimator', 'detail_text', 'estimator_update', 'rezeroed_scale', 'rezeroed_text']
 
 FloatArray = npt.NDArray[np.float64]
 OK, STALE, INVALID_INPUT, SATURATED = (int(s) for s in EstimateStatus)
@@ -408,8 +408,23 @@ def detail_text(settings: EstimatorSettings, block: CurrentBlock, code: int, a: 
     return rezeroed_text(a)
 
 
+REZEROED_TEXT = 'friction re-zeroed in air: '
+REZEROED_UNIT = ' x calibrated'
+
+
 def rezeroed_text(scale: float) -> str:
     """The line for a friction re-zero to ``scale``."""
-    return f'friction re-zeroed in air: {scale:.3f} x calibrated'
+    return f'{REZEROED_TEXT}{scale:.3f}{REZEROED_UNIT}'
+
+
+def rezeroed_scale(detail: str) -> float | None:
+    """The scale a re-zero's line (:func:`rezeroed_text`) says, None where the line is not
+    one (what a node that has the estimate's message, not the estimator, reads)."""
+    if not (detail.startswith(REZEROED_TEXT) and detail.endswith(REZEROED_UNIT)):
+        return None
+    try:
+        return float(detail[len(REZEROED_TEXT):-len(REZEROED_UNIT)])
+    except ValueError:
+        return None
 
 
