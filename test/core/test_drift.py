@@ -11,6 +11,7 @@ feed friction +25 %, servo time constant x1.8.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import replace
@@ -21,10 +22,13 @@ import pytest
 import yaml
 
 from turning_force.commands import population
-from turning_force.core.control import ControllerSettings, drift
+from turning_force.core.control import ControllerSettings, drift, make_controller
 from turning_force.core.control.drift import CAUSES, REZERO_STD
+from turning_force.core.estimation.estimator import rezeroed_text
+from turning_force.core.estimation.settings import EstimateStatus, ForceEstimate
 from turning_force.core.experiment import Experiment, load_experiment
 from turning_force.core.identify import Identification
+from turning_force.core.kernel.chain import command_for
 from turning_force.core.kernel.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -221,3 +225,21 @@ def test_a_tool_change_ends_the_drift_alarm(park_identified: tuple[Identificatio
     t, named = result.trace['t_s'], result.trace['drift_alarm']
     assert CAUSES[int(named[t < 5.5].max())] == 'process gain'
     assert not named[t > 5.51].any() and result.drift == ''
+
+
+def test_the_nodes_pass_the_re_zero_from_the_estimate_to_the_monitor() -> None:
+    # force_controller has the estimate's message, not the estimator: the re-zero's scale
+    # comes in its detail line (estimator.rezeroed_text), which command_for reads, as the
+    # per-block chain and the node do. A line that is no re-zero tells the monitor nothing.
+    settings = ControllerSettings(drift_monitor=True, drift_ksd_min_n_mm=4000.0,
+                                  drift_ksd_max_n_mm=4000.0, drift_friction_n=90.0,
+                                  drift_friction_std=0.01, drift_ksd_std=0.01)
+    controller = make_controller(settings)
+    in_air = ForceEstimate(0.0, 3.0, 0.0, 0.5, 0.4, EstimateStatus.OK, rezeroed_text(1.0))
+    assert command_for(controller, in_air) is not None and controller.drift == ''
+    for detail in ('', 'friction re-zeroed in air: x1.3', 'phase current 31 A beyond the '
+                   'sensor range'):
+        command_for(controller, dataclasses.replace(in_air, detail=detail))
+        assert controller.drift == ''
+    command_for(controller, dataclasses.replace(in_air, detail=rezeroed_text(1.3)))
+    assert controller.drift.startswith('friction +30 % (identified 1.00, now 1.30 +- 0.03)')
