@@ -16,6 +16,8 @@ from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
+
 from turning_force.commands.population import (
     Machine,
     draw,
@@ -62,7 +64,8 @@ def main() -> None:
             run = replace(machine, drifted=change)
             result = simulate(job_experiment(run).with_sets(identified + monitor))
             named = result.trace['drift_alarm']
-            first = CAUSES[int(named[named.argmax()])] if named.any() else ''
+            # the first cause named (not argmax: that is the largest code)
+            first = CAUSES[int(named[np.flatnonzero(named)[0]])] if named.any() else ''
             at_s = result.metrics.get('drift_alarm_s', float('nan'))
             ok = first == cause and at_s <= DEADLINE_S
             if cause == '(none)':

@@ -250,6 +250,33 @@ def test_friction_is_re_zeroed_in_air_and_bounded(drift, below_n, expected):
         assert abs(estimate.force_n) < 3.0   # the air move reads no force again
 
 
+def test_a_friction_drift_lifting_the_air_estimate_over_the_threshold_is_re_zeroed():
+    # 80 % more friction reads some 56 N in air, over rezero_below_n (40 N): alone it is a
+    # light cut (the case above). Fallen there from a 2 mm cut (some 880 N), within the 35 N a
+    # friction drift can lift it (rezero_max_change 0.5 of the 70 N of friction at this feed),
+    # it is the tool in air: the re-zero runs, bounded by rezero_max_change, and once the
+    # scale has followed the estimate is under 40 N, where the level alone says air.
+    defaults = PlantSettings()
+    plant = PlantSettings(depth_times_s=(0.0, 2.0), depth_mm=(2.0, 0.0),
+                          friction_at_min_feed_a=1.8 * defaults.friction_at_min_feed_a,
+                          friction_at_max_feed_a=1.8 * defaults.friction_at_max_feed_a)
+    blocks = [b.currents for b in blocks_of(plant, [100.0] * 200 + [150.0] * 200)]
+    estimator = ForceEstimator(EstimatorSettings())
+    in_air = []
+    for k, block in enumerate(blocks):
+        estimate = estimator.update(block)
+        if k == 230:   # 0.3 s into the air move: the lift, before any re-zero
+            in_air.append(estimate.force_n)
+    assert 40.0 < in_air[0] < 75.0
+    assert estimator.friction_scale == pytest.approx(1.5, rel=0.01)   # bounded
+    assert 're-zeroed' in estimate.detail
+    # by the level alone (rezero_fall_fraction 0) the drift blocks its own re-zero
+    level_alone = ForceEstimator(EstimatorSettings(rezero_fall_fraction=0.0))
+    for block in blocks:
+        level_alone.update(block)
+    assert level_alone.friction_scale == 1.0
+
+
 def test_no_re_zero_while_cutting_or_when_switched_off():
     off = ForceEstimator(EstimatorSettings(rezero_below_n=0.0))
     for block in _air_move(1.35, 2.0):

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from turning_force.cli import main
 from turning_force.commands.run import run_lockstep
@@ -161,9 +162,11 @@ def test_identify_refuses_without_the_jobs_depths(commissioning, capfd, tmp_path
                  '--out', str(out_range)]) == 0
     # The same identified parameters (the predictions and the law's own settings the
     # verification chose may differ: each is verified on its job; so does the drift monitor's
-    # friction as force, taken at each job's programmed feed).
+    # friction as force, taken at each job's programmed feed, and the job's start, which only
+    # a job file gives).
+    start = {'drift_first_s', 'drift_ksd_first_min_n_mm', 'drift_ksd_first_max_n_mm'}
     chosen = {a.split('=', 1)[0].split('.', 1)[1] for sets in CANDIDATES.values()
-              for a in sets or ()} | {'kalman_force_noise_n', 'drift_friction_n'}
+              for a in sets or ()} | {'kalman_force_noise_n', 'drift_friction_n'} | start
 
     def parameters(path):
         return [line for line in path.read_text().splitlines() if not line.startswith('#')
@@ -171,6 +174,13 @@ def test_identify_refuses_without_the_jobs_depths(commissioning, capfd, tmp_path
 
     assert parameters(out_job) == parameters(out_range)
     assert 'For jobs cutting 1-3 mm deep' in out_job.read_text()
+    # fig8 starts at 1 mm for 4 s (its first step): the drift monitor knows the depth there
+    written = yaml.safe_load(out_job.read_text())['/**/force_controller']['ros__parameters']
+    assert written['drift_first_s'] == 4.0
+    assert written['drift_ksd_first_min_n_mm'] == written['drift_ksd_first_max_n_mm'] \
+        == pytest.approx(written['drift_ksd_min_n_mm'])
+    ranged = yaml.safe_load(out_range.read_text())['/**/force_controller']['ros__parameters']
+    assert ranged['drift_first_s'] == 0.0
 
 
 def test_calibrate_map_without_a_dynamometer_exit_2(capfd):

@@ -642,7 +642,9 @@ def _identify(args: argparse.Namespace) -> int:
         node, key, value = parse_set(assignment)
         found[node][key] = value
     # the drift monitor watches the identified model while cutting
-    found['force_controller'].update(drift.identified(ident, job, depths, cut_depth))
+    # (where --job gives the job, the depth its program starts at as well)
+    found['force_controller'].update(drift.identified(
+        ident, job, depths, cut_depth, job.plant.depth_profile if args.job else None))
     sections: Mapping[str, Mapping[str, Any]] = (
         found if chosen.name != 'defaults' else {'force_controller': {}})
     if args.json:

@@ -218,7 +218,9 @@ def identified_sets(machine: Machine, ident: Identification, cut_depth: float,
     job = job_experiment(machine, after_drift=False, experiments=experiments)
     found = ident.parameters(depths, cut_depth, job.controller.reference_force_n)
     identified = [a for node, params in found.items() for a in assignments(node, params)]
-    monitor = drift.identified(ident, job, depths, cut_depth)
+    # the program's start is known for the machine's own job, not for other depths
+    monitor = drift.identified(ident, job, depths, cut_depth,
+                               job.plant.depth_profile if depths_mm is None else None)
     return identified, assignments('force_controller', monitor)
 
 

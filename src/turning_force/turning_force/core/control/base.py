@@ -148,6 +148,11 @@ class Controller:
         """The drift alarm in words (:func:`.drift.drift_text`; '' while none holds)."""
         return drift.drift_text(self.settings, *drift.alarm(self._state[CS_DRIFT:CS_LAW]))
 
+    def rezeroed(self, scale: float) -> None:
+        """The estimator re-zeroed the friction in air to ``scale`` x calibrated (the drift
+        monitor's measurement of the friction, :func:`.drift.drift_rezeroed`)."""
+        update.control_rezeroed(self._params, self._state, float(scale))
+
     @property
     def resets(self) -> int:
         """How often the law was reset after a non-finite input or state."""

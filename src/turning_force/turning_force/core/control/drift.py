@@ -22,6 +22,18 @@ of freedom; Basseville & Nikiforov, Detection of Abrupt Changes, 1993, Sec. 4.2 
   friction the estimator subtracts: ``c`` over the identified friction's share of the force);
   where the job's depths span a range of K_s d, ``K_id`` is the nearest end of that range.
 
+The force gives the product K_s d, never K_s alone: on a job over several depths, a gain drift
+at one depth is another depth (a 1 mm cut 40 % harder is a 1.4 mm cut) until the force leaves
+the job's range. Where the depth is known, it is not: at the job's start (``drift_first_s`` of
+cutting, until its program's first depth change, ``identify --job`` writes it with the depth
+there as ``drift_ksd_first_*``) ``K_id`` is that depth's.
+
+The friction is measured, not inferred, where the tool is in air: the estimator's re-zero
+(:func:`drift_rezeroed`) gives its scale on the identified curve, and a scale outside the
+identified friction's uncertainty is the friction drift. Without an air move, a friction drift
+is an offset of a few percent of the cut's force, within the process model's own error on most
+machines: it is named where the window's feed moves enough to tell an offset from a gain.
+
 Members within ``drift_sigmas`` standard deviations of the identified value, and gains or
 offsets within that many of the identified process model's own error (its residual in the
 commissioning cut and its parameters' standard deviations), are not drift; nor is an offset
@@ -29,8 +41,9 @@ larger than the friction change the estimator's re-zero would follow
 (``drift_friction_max_change``, its ``rezero_max_change``). Where the window cannot tell a gain
 from an offset (a cut at one depth and feed shows a level more than its cause), the alarm
 names the one that fits better and the other beside it. A cause raises the
-alarm once it has stood for ``drift_memory_s``; the alarm holds (a drift is the machine's, not
-the cut's) until another cause is found.
+alarm once it has stood for ``drift_memory_s`` of cutting (an air move pauses the count); the
+alarm holds (a drift is the machine's, not the cut's) until another cause is found, or the tool
+changes (:func:`drift_tool`: another tool, another identified model).
 """
 
 from __future__ import annotations
@@ -48,9 +61,10 @@ if TYPE_CHECKING:
     from turning_force.core.control.law import ControllerBase
     from turning_force.core.experiment import Experiment
     from turning_force.core.identify import Identification
+    from turning_force.core.plant.settings import DepthProfile
 
-__all__ = ['CAUSES', 'PARAMS', 'STATE', 'alarm', 'drift_applied', 'drift_fill', 'drift_step',
-           'drift_text', 'identified']
+__all__ = ['CAUSES', 'PARAMS', 'STATE', 'alarm', 'drift_applied', 'drift_fill', 'drift_rezeroed',
+           'drift_step', 'drift_text', 'drift_tool', 'first_cut', 'identified']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -62,12 +76,18 @@ N_MODELS = 1 + len(DEAD_OFFSETS) + len(SERVO_POWERS)
 # What drifted (the alarm's code, the trace's ``drift_alarm``).
 NONE, DEAD_TIME, SERVO, GAIN, FRICTION = range(5)
 CAUSES = ('', 'PMC dead time', 'servo', 'process gain', 'friction')
+FIRST_RAMP_S = 3.0   # a job that starts on a taper: its first seconds count as its start
+# The re-zero reads the friction at the air move's feed through the identified curve's shape,
+# which the commissioning cut fitted at its own feeds: its relative error there, one standard
+# deviation (up to 4 % on generated machines that did not change, bench_drift.py seed 16).
+REZERO_STD = 0.025
 HISTORY = 64   # control periods of applied override kept (the longest delay in the bank)
 
 # --- parameters (dp) ---------------------------------------------------------------------------
 (D_ON, D_PERIOD, D_FORGET, D_SIGMAS, D_POLE, D_EXPONENT, D_SETTLE, D_MEMORY, D_K_LO, D_K_HI,
- D_K_STD, D_FRICTION, D_FRICTION_STD, D_FRICTION_MAX, D_DEAD, D_DEAD_STD, D_SERVO_STD) = range(17)
-D_MODELS = 17
+ D_K_STD, D_FRICTION, D_FRICTION_STD, D_FRICTION_MAX, D_DEAD, D_DEAD_STD, D_SERVO_STD,
+ D_FIRST_S, D_K_FIRST_LO, D_K_FIRST_HI) = range(20)
+D_MODELS = 20
 # per member: delay [periods], servo b0 b1 b2 a1 a2 (direct form II transposed), cause, size
 M_DELAY, M_B0, M_B1, M_B2, M_A1, M_A2, M_CAUSE, M_SIZE = range(8)
 M_FIELDS = 8
@@ -77,10 +97,13 @@ PARAMS = D_MODELS + N_MODELS * M_FIELDS
 # the override applied to the coming block (NaN: none told yet), the ring's index, whether the
 # bank runs, the time in the cut, the window's sums (weights, F, F^2), the cause standing and
 # since when, the alarm (its cause, size, standard deviation), how often it was raised, and
-# where the cut cannot tell a gain from a friction drift, the other one's reading.
+# where the cut cannot tell a gain from a friction drift, the other one's reading, and the time
+# in the cut since the monitor was armed (the run's start or the tool's change), and how long
+# the tests have not found the cause standing.
 (DS_APPLIED, DS_AT, DS_STARTED, DS_IN_CUT, DS_S1, DS_SF, DS_SFF, DS_CAUSE, DS_SIZE,
- DS_SINCE, DS_ALARM, DS_ALARM_SIZE, DS_ALARM_STD, DS_ALARMS, DS_ALARM_ALT) = range(15)
-DS_HIST = 15
+ DS_SINCE, DS_ALARM, DS_ALARM_SIZE, DS_ALARM_STD, DS_ALARMS, DS_ALARM_ALT,
+ DS_CUT_S, DS_LAPSE) = range(17)
+DS_HIST = 17
 DS_MODELS = DS_HIST + HISTORY
 # per member: servo state z0 z1, output y, sums y, y^2, y F, and of its residual: squared,
 # times the one before, the one before
@@ -90,14 +113,20 @@ STATE = DS_MODELS + N_MODELS * S_FIELDS
 
 
 def identified(ident: Identification, job: Experiment, depths_mm: tuple[float, float],
-               cut_depth_mm: float) -> dict[str, float | bool]:
+               cut_depth_mm: float, program: DepthProfile | None = None
+               ) -> dict[str, float | bool]:
     """The ``force_controller`` settings that turn the monitor on for a job cutting
     ``depths_mm`` deep on the machine ``ident`` identified from a cut ``cut_depth_mm`` deep
     (what ``identify`` writes beside the model): K_s d over the job's depths, and the standard
     deviation of each identified value. A force the process model predicts is as uncertain as
     its parameters and as its residual in the commissioning cut (the model error the fit
-    left, relative to the job's reference force)."""
+    left, relative to the job's reference force).
+
+    With the job's depth ``program``, also where the job starts: K_s d over the depths of its
+    first :func:`first_cut` seconds. The force gives K_s d, never K_s alone; a gain drift is
+    seen where the depth is known, and the program's start is such a place."""
     ksd = ident.ksd_n_mm
+    first_s, first = first_cut(program) if program is not None else (0.0, depths_mm)
     residual = ident.process.residual_rms / job.controller.reference_force_n
     feed_rate = job.controller.programmed_feed_rate_mm_min
     friction_a = float(ident.friction_model.current_a(np.array([feed_rate]))[0])
@@ -115,7 +144,25 @@ def identified(ident: Identification, job: Experiment, depths_mm: tuple[float, f
         'drift_friction_max_change': job.estimator.rezero_max_change,
         'drift_dead_time_std_s': min(ident.dead_time_s.std, 1.0),
         'drift_servo_std': min(scale.relative_std(), 1.0),
+        'drift_first_s': first_s,
+        'drift_ksd_first_min_n_mm': ksd.value * first[0] / cut_depth_mm,
+        'drift_ksd_first_max_n_mm': ksd.value * first[1] / cut_depth_mm,
     }
+
+
+def first_cut(program: DepthProfile) -> tuple[float, tuple[float, float]]:
+    """The job's start, where its depth is known: the time in the cut [s] until the program's
+    first depth change, and the depth [mm] there; where it starts on a taper, its first
+    FIRST_RAMP_S and the depths [mm] it ramps over. 0 s where the depth never changes (the
+    job's range is its start's). The simulator's program runs in time; a real one runs in
+    distance, and reaches its first change later where the override is below 100 %."""
+    changes = program.change_times_s()
+    if not changes or program.depth_mm[0] <= 0.0:   # one depth, or a start in air
+        return 0.0, (program.depth_mm[0], program.depth_mm[0])
+    if changes[0] > 0.0:
+        return changes[0], (program.depth_mm[0], program.depth_mm[0])
+    depths = program.at(np.linspace(0.0, FIRST_RAMP_S, 31))
+    return FIRST_RAMP_S, (float(depths.min()), float(depths.max()))
 
 
 def drift_fill(c: ControllerBase) -> FloatArray:
@@ -142,6 +189,9 @@ def drift_fill(c: ControllerBase) -> FloatArray:
     p[D_FRICTION_MAX] = c.drift_friction_max_change
     p[D_DEAD], p[D_DEAD_STD] = c.model_dead_time_s, c.drift_dead_time_std_s
     p[D_SERVO_STD] = c.drift_servo_std
+    p[D_FIRST_S] = c.drift_first_s
+    p[D_K_FIRST_LO] = c.drift_ksd_first_min_n_mm * feed
+    p[D_K_FIRST_HI] = c.drift_ksd_first_max_n_mm * feed
     members = [(0.0, 1.0, NONE, 0.0)]
     members += [(j * h, 1.0, DEAD_TIME, j * h) for j in DEAD_OFFSETS]
     members += [(0.0, SERVO_RATIO ** k, SERVO, SERVO_RATIO ** k) for k in SERVO_POWERS]
@@ -200,9 +250,10 @@ def _advance(dp: np.ndarray, ds: np.ndarray, ratio: float) -> None:
 
 @compiled
 def _forget(ds: np.ndarray) -> None:
-    """Out of the cut: the window starts afresh at the next entry (the alarm holds)."""
+    """Out of the cut: the window starts afresh at the next entry. The alarm holds, and so
+    does a cause standing: its time counts in the cut, and an air move pauses it (the next
+    cut's window finds it again, or another cause, which starts afresh)."""
     ds[DS_IN_CUT], ds[DS_S1], ds[DS_SF], ds[DS_SFF] = 0.0, 0.0, 0.0, 0.0
-    ds[DS_CAUSE], ds[DS_SINCE] = 0.0, 0.0
     for m in range(N_MODELS):
         at = DS_MODELS + m * S_FIELDS
         ds[at + SY:at + S_FIELDS] = 0.0
@@ -245,14 +296,14 @@ def _eligible(dp: np.ndarray, m: int) -> bool:
 
 
 @compiled
-def _level(dp: np.ndarray, ds: np.ndarray, m: int, n_eff: float
+def _level(dp: np.ndarray, ds: np.ndarray, m: int, n_eff: float, k_lo: float, k_hi: float
            ) -> tuple[float, float, float, float, float, float]:
-    """The level test on member m: cause (NONE where neither a gain nor an offset
-    explains the force better than the identified model), size, its standard deviation, the
-    ratio statistic, and the other one's reading and its standard deviation (0: none) where
-    the window cannot tell a gain from an offset (their own ratio statistic below the
-    threshold: a cut at one feed shows a level more than its cause; the one that fits better
-    is named first)."""
+    """The level test on member m, the identified gain within [k_lo, k_hi]: cause (NONE
+    where neither a gain nor an offset explains the force better than the identified model),
+    size, its standard deviation, the ratio statistic, and the other one's reading and its
+    standard deviation (0: none) where the window cannot tell a gain from an offset (their
+    own ratio statistic below the threshold: a cut at one feed shows a level more than its
+    cause; the one that fits better is named first)."""
     at = DS_MODELS + m * S_FIELDS
     s1, sf, sff = ds[DS_S1], ds[DS_SF], ds[DS_SFF]
     sy, syy, syf = ds[at + SY], ds[at + SYY], ds[at + SYF]
@@ -261,7 +312,7 @@ def _level(dp: np.ndarray, ds: np.ndarray, m: int, n_eff: float
         return nothing
     z = dp[D_SIGMAS]
     k_hat = syf / syy
-    k_id = pymin(pymax(k_hat, dp[D_K_LO]), dp[D_K_HI])
+    k_id = pymin(pymax(k_hat, k_lo), k_hi)
     sse_id = pymax(sff - 2.0 * k_id * syf + k_id * k_id * syy, 1e-12 * sff)
     sse_gain = pymax(sff - syf * syf / syy, 1e-12 * sff)
     offset = (sf - k_id * sy) / s1
@@ -304,6 +355,7 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
         return
     h = dp[D_PERIOD]
     ds[DS_IN_CUT] += h
+    ds[DS_CUT_S] += h
     if ds[DS_IN_CUT] < dp[D_SETTLE]:
         return
     lam = dp[D_FORGET]
@@ -343,7 +395,11 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
         std = 0.5 * h if cause == DEAD_TIME else 0.5 * (SERVO_RATIO - 1.0) * size
     else:
         # on the identified member: no lag drift found
-        level = _level(dp, ds, 0, _effective(ds, 0))
+        # the job's start, where the depth is known, or anywhere in the job's depths
+        start = ds[DS_CUT_S] <= dp[D_FIRST_S]
+        level = _level(dp, ds, 0, _effective(ds, 0),
+                       dp[D_K_FIRST_LO] if start else dp[D_K_LO],
+                       dp[D_K_FIRST_HI] if start else dp[D_K_HI])
         if level[0] != NONE and level[3] > threshold:
             cause, size, std, alt = int(level[0]), level[1], level[2], level[4]
             if alt != 0.0 and int(ds[DS_CAUSE]) == GAIN + FRICTION - cause:
@@ -352,17 +408,56 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
     standing = int(ds[DS_CAUSE])
     levels = cause in (GAIN, FRICTION) and standing in (GAIN, FRICTION)
     if cause == NONE or (cause != standing and not levels):
-        ds[DS_CAUSE], ds[DS_SINCE] = cause, 0.0
+        # a lapse shorter than the process's own transient (the force falling as the tool
+        # leaves the work, or at a depth step, which no model of the feed follows) pauses
+        # the cause standing; a longer one ends it
+        if standing != NONE and ds[DS_LAPSE] + h < dp[D_SETTLE]:
+            ds[DS_LAPSE] += h
+            return
+        ds[DS_CAUSE], ds[DS_SINCE], ds[DS_LAPSE] = cause, 0.0, 0.0
         return
+    ds[DS_LAPSE] = 0.0
     # a level drift stands while its attribution to gain or friction changes: the alarm
     # names the one that explains the window best now
     ds[DS_CAUSE], ds[DS_SIZE] = cause, size
     ds[DS_SINCE] += h
     if ds[DS_SINCE] >= dp[D_MEMORY]:
-        if int(ds[DS_ALARM]) != cause:
-            ds[DS_ALARMS] += 1.0
-        ds[DS_ALARM], ds[DS_ALARM_SIZE], ds[DS_ALARM_STD] = cause, size, std
-        ds[DS_ALARM_ALT] = alt
+        _raise(ds, cause, size, std, alt)
+
+
+@compiled
+def _raise(ds: np.ndarray, cause: int, size: float, std: float, alt: float) -> None:
+    """The alarm says ``cause`` by ``size`` (counted where the cause is new)."""
+    if int(ds[DS_ALARM]) != cause:
+        ds[DS_ALARMS] += 1.0
+    ds[DS_ALARM], ds[DS_ALARM_SIZE], ds[DS_ALARM_STD], ds[DS_ALARM_ALT] = cause, size, std, alt
+
+
+@compiled
+def drift_rezeroed(dp: np.ndarray, ds: np.ndarray, scale: float) -> None:
+    """The estimator re-zeroed the friction in air: it now takes ``scale`` times the
+    identified friction (the curve ``identify`` wrote, at scale 1). That is a measurement
+    of the friction itself, no model's inference: beyond ``drift_sigmas`` standard deviations
+    of the identified friction it is the friction drift, named at once and sized by it. Within
+    them it is none: a level in the cut named friction before (a cut at one depth and feed
+    cannot tell it from a gain) was the process gain."""
+    if dp[D_ON] == 0.0 or not (dp[D_FRICTION] > 0.0 and math.isfinite(scale)):
+        return
+    size, std = scale - 1.0, pymax(dp[D_FRICTION_STD], REZERO_STD)
+    if abs(size) > dp[D_SIGMAS] * std:
+        _raise(ds, FRICTION, size, std, 0.0)
+    elif int(ds[DS_ALARM]) == FRICTION and ds[DS_ALARM_ALT] != 0.0:
+        _raise(ds, GAIN, ds[DS_ALARM_ALT], dp[D_K_STD], 0.0)
+
+
+@compiled
+def drift_tool(ds: np.ndarray) -> None:
+    """Another tool: another identified model, watched afresh (the bank restarts, the alarm
+    ends, the job's start is the new tool's); the count of alarms and the override applied
+    stay."""
+    applied, alarms = ds[DS_APPLIED], ds[DS_ALARMS]
+    ds[:] = 0.0
+    ds[DS_APPLIED], ds[DS_ALARMS] = applied, alarms
 
 
 def alarm(ds: FloatArray) -> tuple[int, float, float, float]:

@@ -246,11 +246,27 @@ class ControllerBase(Settings):
         0.0, "Drift monitor: relative standard deviation of the identified servo's time scale",
         '-', low=0.0, high=1.0)
 
+    drift_first_s: float = setting(
+        0.0, "Drift monitor: how long the job's start lasts, in the cut (until its first "
+        'depth change): there the depth is known, and the force tells the process gain from a '
+        'depth (drift_ksd_first_*); 0: no such start', 's', low=0.0, high=1e6)
+    drift_ksd_first_min_n_mm: float = setting(
+        0.0, "Drift monitor: the identified K_s d at the shallowest depth of the job's start",
+        'N/mm', low=0.0, high=1e7)
+    drift_ksd_first_max_n_mm: float = setting(
+        0.0, "Drift monitor: the identified K_s d at the deepest depth of the job's start",
+        'N/mm', low=0.0, high=1e7)
+
     def check(self) -> None:
         super().check()
         if self.drift_monitor and not 0.0 < self.drift_ksd_min_n_mm <= self.drift_ksd_max_n_mm:
             self.fail('drift_ksd_min_n_mm', 'the drift monitor needs 0 < drift_ksd_min_n_mm <= '
                       f'drift_ksd_max_n_mm ({self.drift_ksd_max_n_mm!r}): identify writes them')
+        if (self.drift_monitor and self.drift_first_s > 0.0
+                and not 0.0 < self.drift_ksd_first_min_n_mm <= self.drift_ksd_first_max_n_mm):
+            self.fail('drift_ksd_first_min_n_mm', 'with drift_first_s the drift monitor needs '
+                      '0 < drift_ksd_first_min_n_mm <= drift_ksd_first_max_n_mm '
+                      f'({self.drift_ksd_first_max_n_mm!r}): identify writes them')
         table = get_table(self.override_table)
         if not table.min_pct <= self.initial_override_pct <= table.max_pct:
             self.fail('initial_override_pct', f'outside the {table.name} range '

@@ -18,7 +18,14 @@ import numpy as np
 
 from turning_force.core.compiled import Arr, compiled, entry, pymax, pymin, quantise, table_row
 from turning_force.core.control import dispatch
-from turning_force.core.control.drift import DS_ALARM, DS_ALARM_SIZE, drift_applied, drift_step
+from turning_force.core.control.drift import (
+    DS_ALARM,
+    DS_ALARM_SIZE,
+    drift_applied,
+    drift_rezeroed,
+    drift_step,
+    drift_tool,
+)
 from turning_force.core.control.law import (
     C_CONT,
     C_DRIFT,
@@ -73,8 +80,9 @@ from turning_force.core.control.law import (
     spindle_speed,
 )
 
-__all__ = ['control_applied', 'control_step', 'control_tool', 'controller_applied',
-           'controller_start', 'controller_tool', 'controller_update']
+__all__ = ['control_applied', 'control_rezeroed', 'control_step', 'control_tool',
+           'controller_applied',
+           'controller_rezeroed', 'controller_start', 'controller_tool', 'controller_update']
 
 # FeedOverride.REASON_NORMAL: the controller's request went through as asked; REASON_RISE_LIMIT
 # and REASON_FEED_FLOOR: it went through limited (its rise, its floor), the loop still closed.
@@ -408,7 +416,8 @@ def controller_tool(tools: np.ndarray, cp: np.ndarray, cs: np.ndarray, number: f
     kept; returns the row, -1 where the table has none (the parameters stay). A tool changes in
     air: the law starts afresh from the request held, as at an entry (the anti-windup of
     :func:`controller_applied`), the quantiser's carry and the reachability clock cleared. The
-    oscillation alarm ends: another tool is another loop, watched afresh."""
+    oscillation alarm ends: another tool is another loop, watched afresh; so does the drift
+    alarm (:func:`.drift.drift_tool`): the tool's own model is watched from its start."""
     row = table_row(tools, number)
     if row < 0:
         return row
@@ -418,8 +427,22 @@ def controller_tool(tools: np.ndarray, cp: np.ndarray, cs: np.ndarray, number: f
     spindle_speed(cp, rpm)
     cs[CS_CARRY], cs[CS_PINNED], cs[CS_SIDE] = 0.0, 0.0, 0.0
     cs[CS_O_ALARM], cs[CS_O_DIR], cs[CS_O_COUNT] = 0.0, 0.0, 0.0
+    drift_tool(cs[CS_DRIFT:CS_LAW])
     law_reset(int(cp[C_KIND]), cp, cs)
     return row
+
+
+@compiled
+def controller_rezeroed(cp: np.ndarray, cs: np.ndarray, scale: float) -> None:
+    """The estimator re-zeroed the friction in air to ``scale`` x calibrated: the drift
+    monitor's measurement of the friction (:func:`.drift.drift_rezeroed`)."""
+    drift_rezeroed(cp[C_DRIFT:C_LAW], cs[CS_DRIFT:CS_LAW], scale)
+
+
+@entry('void(float64[::1], float64[::1], float64)')
+def control_rezeroed(cp: Arr, cs: Arr, scale: float) -> None:
+    """:func:`controller_rezeroed` from Python (the controller node, the per-block chain)."""
+    controller_rezeroed(cp, cs, scale)
 
 
 @entry('int64(float64[:, ::1], float64[::1], float64[::1], float64)')

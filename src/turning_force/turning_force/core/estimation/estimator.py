@@ -31,7 +31,7 @@ from turning_force.core.estimation.settings import (
 from turning_force.core.plant.drive import CurrentBlock
 from turning_force.core.plant.feeddrive import friction_current
 
-__all__ = ['ForceEstimator', 'detail_text', 'estimator_update', 'rezeroed_text']
+__all__ = ['ForceEstimator', 'detail_text', 'estimator_update', 'rezeroed_scale', 'rezeroed_text']
 
 FloatArray = npt.NDArray[np.float64]
 OK, STALE, INVALID_INPUT, SATURATED = (int(s) for s in EstimateStatus)
@@ -42,7 +42,8 @@ E_KIND, E_FR_A, E_FR_B, E_FR_MIN, E_FR_MAX, E_MAP_OFF, E_MAP_PER, E_RANGE = rang
 E_REZ_BELOW, E_REZ_AFTER, E_REZ_TAU, E_REZ_MAX, E_MAX_JUMP = range(8, 13)
 E_GAIN_DT, E_K0, E_K1, E_NSEC, E_DB0, E_DB1, E_DA1 = range(13, 20)
 E_SOS, E_SOS_ZI = 20, 44                      # 4 sections x 6, 4 sections x 2
-E_SIZE = 52
+E_REZ_FALL = 52
+E_SIZE = 53
 KALMAN, LOWPASS = 0, 1
 # estimator state
 ES_ACTIVE, ES_DT, ES_LAST_T, ES_NEXT_T, ES_NRESYNC, ES_RESYNC = 0, 1, 2, 3, 4, 5   # 3 slots
@@ -50,7 +51,13 @@ ES_SCALE, ES_AIR, ES_RESTARTS = 8, 9, 10
 ES_T, ES_F, ES_R, ES_IQ, ES_IFR, ES_STATUS = range(11, 17)
 ES_DCODE, ES_DVAL = 17, 18                    # detail code, 2 values
 ES_X = 20                                     # Kalman x (2) or low-pass zi (8) and dzi (1)
-ES_SIZE = 29
+ES_LEVEL, ES_FALLEN = 29, 30                  # the force's level, the time fallen from it
+ES_SIZE = 31
+# The force's level the re-zero's fall is taken from: its mean over this time constant [s]. A
+# fall below rezero_fall_fraction of it is air for as long as the level remembers the cut
+# (about 2 s after an exit from a cut four times the estimate in air), long enough for the
+# re-zero to bring the estimate in air below rezero_below_n, where it is air by the level alone.
+LEVEL_TIME_CONSTANT_S = 2.0
 # detail codes (ForceEstimator's one-line problems and notes)
 D_NONE, D_LENGTHS, D_DT_BAD, D_DT_CHANGED, D_NONFINITE, D_STAMP_NONFINITE = range(6)
 D_STAMP_NOT_AFTER, D_STAMP_JUMP, D_IMPLAUSIBLE, D_OVERFLOW, D_FILTER_OVERFLOW = range(6, 11)
@@ -195,7 +202,19 @@ def estimator_update(ep: np.ndarray, es: np.ndarray, t0: float, dt: float, u: np
     below = ep[E_REZ_BELOW]
     in_air = below > 0 and abs(force) < below
     es[ES_AIR] = es[ES_AIR] + n * dt if in_air else 0.0
-    if es[ES_AIR] >= ep[E_REZ_AFTER]:
+    # A friction drift lifts the estimate in air by up to rezero_max_change of the friction:
+    # the time the estimate has sat in that lift, fallen from the cut's level, counts as air
+    # too (paused where it dips below rezero_below_n, where ES_AIR counts; reset where the
+    # force rises out of it: a cut). An exit from the cut without a drift passes the lift in
+    # less than a tau_c and waits below rezero_below_n, as it always did.
+    lifted = below + ep[E_REZ_MAX] * abs(friction_current(fa, fb, fmin, fmax, feed[n - 1])) / per
+    fallen = force < ep[E_REZ_FALL] * es[ES_LEVEL]
+    if below > 0 and not in_air and force < lifted and fallen:
+        es[ES_FALLEN] += n * dt
+    elif not in_air:
+        es[ES_FALLEN] = 0.0
+    es[ES_LEVEL] += (force - es[ES_LEVEL]) * (1.0 - math.exp(-n * dt / LEVEL_TIME_CONSTANT_S))
+    if es[ES_AIR] >= ep[E_REZ_AFTER] or es[ES_FALLEN] >= ep[E_REZ_AFTER]:
         slowest = abs(feed[0])
         for i in range(1, n):
             slowest = min(slowest, abs(feed[i]))
@@ -246,7 +265,12 @@ class ForceEstimator:
     Friction re-zero: while the tool is out of the material (Park Eq. 25 drifts with the
     slideway's temperature and lubrication), the q current less Eq. 26's zero-force offset is
     friction alone, and its ratio to the calibrated curve at this feed scales the curve, within
-    ``rezero_max_change``.
+    ``rezero_max_change``. Out of the material is an estimate below ``rezero_below_n`` for
+    ``rezero_after_s``; or, as long: within the lift a friction drift gives the estimate in
+    air (``rezero_max_change`` of the friction at this feed above ``rezero_below_n``) and below
+    ``rezero_fall_fraction`` of the force's level over the last seconds
+    (LEVEL_TIME_CONSTANT_S): the tool has left a cut, and a drifted friction holds the
+    estimate up. A light cut is not a fall (Park's Fig. 13 cuts at 50 N throughout).
 
     The arithmetic is written once, as the compiled ``estimator_update`` of
     :mod:`turning_force.core.kernel.loops` (which the compiled loops run on :meth:`arrays_for`);
@@ -334,6 +358,7 @@ def _estimator_params(settings: EstimatorSettings) -> FloatArray:
     p[E_REZ_BELOW], p[E_REZ_AFTER] = settings.rezero_below_n, settings.rezero_after_s
     p[E_REZ_TAU] = settings.rezero_time_constant_s
     p[E_REZ_MAX] = settings.rezero_max_change
+    p[E_REZ_FALL] = settings.rezero_fall_fraction
     p[E_MAX_JUMP] = settings.max_stamp_jump_s
     p[E_GAIN_DT] = math.nan
     return p
@@ -408,8 +433,23 @@ def detail_text(settings: EstimatorSettings, block: CurrentBlock, code: int, a: 
     return rezeroed_text(a)
 
 
+REZEROED_TEXT = 'friction re-zeroed in air: '
+REZEROED_UNIT = ' x calibrated'
+
+
 def rezeroed_text(scale: float) -> str:
     """The line for a friction re-zero to ``scale``."""
-    return f'friction re-zeroed in air: {scale:.3f} x calibrated'
+    return f'{REZEROED_TEXT}{scale:.3f}{REZEROED_UNIT}'
+
+
+def rezeroed_scale(detail: str) -> float | None:
+    """The scale a re-zero's line (:func:`rezeroed_text`) says, None where the line is not
+    one (what a node that has the estimate's message, not the estimator, reads)."""
+    if not (detail.startswith(REZEROED_TEXT) and detail.endswith(REZEROED_UNIT)):
+        return None
+    try:
+        return float(detail[len(REZEROED_TEXT):-len(REZEROED_UNIT)])
+    except ValueError:
+        return None
 
 

@@ -96,6 +96,13 @@ class EstimatorSettings(FeedDriveSettings):
                                     'air move has re-zeroed the friction for this long (a '
                                     'program without one: friction that drifts goes unseen); '
                                     '0: no warning', 's', low=0.0, high=86400.0)
+    rezero_fall_fraction: float = setting(0.25, 'Friction re-zero: an estimate that has '
+                                          'fallen below this fraction of the cut it left (its '
+                                          'mean over the last seconds) and stays within '
+                                          'rezero_max_change of the friction above '
+                                          'rezero_below_n for rezero_after_s is the tool in '
+                                          'air too (a friction drift lifts the estimate in '
+                                          'air); 0: the level alone', '-', low=0.0, high=0.9)
     rezero_max_change: float = setting(0.5, 'Friction re-zero: the scale on the calibrated '
                                        'friction stays within 1 -/+ this', low=0.0, high=0.9,
                                        unit='-')

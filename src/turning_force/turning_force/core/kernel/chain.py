@@ -27,7 +27,7 @@ import numpy.typing as npt
 from turning_force.core.control import ControllerSettings, ControlOutput, make_controller
 from turning_force.core.control.base import Controller
 from turning_force.core.errors import ConfigError
-from turning_force.core.estimation.estimator import ForceEstimator
+from turning_force.core.estimation.estimator import ForceEstimator, rezeroed_scale
 from turning_force.core.estimation.settings import EstimatorSettings, ForceEstimate
 from turning_force.core.plant.drive import CurrentBlock
 from turning_force.core.pmc.gate import OverrideGate
@@ -51,9 +51,13 @@ def command_for_would_act(estimate: ForceEstimate) -> bool:
 
 
 def command_for(controller: Controller, estimate: ForceEstimate) -> ControlOutput | None:
-    """The controller's command for an estimate, or None where it must not act."""
+    """The controller's command for an estimate, or None where it must not act. An estimate
+    that re-zeroed the friction in air tells the controller's drift monitor the scale."""
     if not command_for_would_act(estimate):
         return None
+    scale = rezeroed_scale(estimate.detail)
+    if scale is not None:
+        controller.rezeroed(scale)
     return controller.update(estimate.force_n, estimate.force_rate_n_s)
 
 

@@ -35,10 +35,12 @@ from turning_force.core.control.law import (
 )
 from turning_force.core.control.update import (
     controller_applied,
+    controller_rezeroed,
     controller_tool,
     controller_update,
 )
 from turning_force.core.estimation.estimator import (
+    D_REZEROED,
     ES_DCODE,
     ES_DVAL,
     ES_F,
@@ -110,6 +112,8 @@ def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
     if tool == tool and tool != gs[GS_TOOL] and gate_tool(gtools, gp, gs, tool) >= 0:
         controller_tool(ctools, cp, cs, tool)
     status = estimator_update(ep, es, t0, dt, u, v, angle, feed, work)
+    if es[ES_DCODE] == D_REZEROED:   # the friction measured in air: the drift monitor's
+        controller_rezeroed(cp, cs, es[ES_DVAL])
     force, rate = es[ES_F], es[ES_R]
     gate_on_estimate(gp, gs, force, status, cut)
     gate_feed(gp, gs, np.mean(feed), inputs[3])
