@@ -29,8 +29,9 @@ clipped to the table); the law sends the ``u`` of least ``J``.
 
 A cut whose depth changes along the part (a taper, a contour) changes ``k`` steadily, and a
 ``k`` held at its last learned value over the dead time and the horizon leaves the force a
-steady error behind it: ``k``'s rate times the time from the learning to the middle of the
-horizon (on a 1 -> 2.5 mm taper over 12 s behind 94 ms of dead time, 5-7 N). The law therefore
+steady error behind it: ``k``'s rate times the time from the learning to the first periods
+after the dead time, which the first move is chosen for (the held tail takes the rest of the
+horizon): on a 1 -> 2.5 mm taper over 12 s behind 94 ms of dead time, 5-7 N. The law therefore
 learns ``k``'s trend ``r`` per period, smoothed over ``mpc_trend_time_constant_s``, and predicts
 ``k_j = k + r (l + D + 1 + j)`` for the ``j``-th period of the horizon, ``l = (1 - a) / a`` the
 lag of the learning's smoothing ``a`` on a ramp: ``z_ref`` and ``w`` are taken per period. A
