@@ -260,6 +260,9 @@ def step(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndar
     lead = (1.0 - cp[P_WEIGHT]) / cp[P_WEIGHT] + dead + 1.0
     z_ref, w = np.empty(horizon), np.empty(horizon)
     for j in range(horizon):
+        if j > 0 and trend == 0.0:   # k held: one z_ref and w for the whole horizon
+            z_ref[j], w[j] = z_ref[0], w[0]
+            continue
         k_j = min(max(k + trend * (lead + j), 0.5 * k), 2.0 * k)
         z_ref[j] = (ref / k_j) ** (1.0 / g)
         w[j] = g * k_j * z_ref[j] ** (g - 1.0)
