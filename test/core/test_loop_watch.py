@@ -17,7 +17,7 @@ from test_kernel import EXPERIMENTS, FIG8
 from turning_force.commands import population
 from turning_force.core.control import make_controller
 from turning_force.core.control.law import CS_O_CROSSOVER
-from turning_force.core.control.update import DETUNE_RATIO
+from turning_force.core.control.update import DETUNE_RATIO, FASTEST_RATIO, TAIL_RATE_PER_S
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import Experiment, load_experiment
 from turning_force.core.kernel.simulate import SimulationResult, simulate
@@ -163,9 +163,19 @@ def test_the_reaction_holds_across_an_interrupted_cut():
     # long jobs on light cutting exponents (g 0.61, 0.78, 0.93): the reaction's integral at
     # half the crossover meant, still 34-39 N off 2 s after a depth step of x0.4 or x3
     (15, 7), (15, 12), (7, 57),
+    # a x3.5 step's rise of 880 N and return of 793 N (smaller than the rise: no kick as it
+    # was), then a cycle growing from 117 N: alarmed 2.44 s after the onset
+    (23, 47),
+    # a depth step's slow return under the reaction read as the reaction cycling (half-periods
+    # of 1.8 s against the cycle's 0.19 s): its crossover halved, 41 N after the next step
+    (7, 5),
+    # the slowest loops on a light exponent (g 0.63): at w_u / 5 still 35 N off 2 s after a
+    # x0.4 step; quickened after the first step's sluggish return
+    (7, 24),
 ], ids=['trough out of the cut', 'interrupted, trough out of the cut', 'deep step',
         'steps', 'long job, 141 ms', 'long job, 130 ms', 'kick larger than the cycle',
-        'drifting mean', 'long job, g 0.61', 'long job, g 0.78', 'long job, g 0.93'])
+        'drifting mean', 'long job, g 0.61', 'long job, g 0.78', 'long job, g 0.93',
+        'kick with a smaller return', 'slow return under the reaction', 'long job, quickened'])
 def test_generated_machines_are_alarmed_in_time_and_calmed(seed, index):
     # Machines of the generated population (commands/population.py) of the classes the
     # detector once missed or the reaction once left cycling, judged as the issue does: the
@@ -206,16 +216,14 @@ def test_no_alarm_while_the_loop_is_open():
     assert simulate(experiment).metrics['oscillation_alarms'] == 0.0
 
 
-def test_the_detune_reaction_runs_at_the_crossover_the_cycle_gives():
-    # A force error cycling at 200 N and 0.6 s (the controller's output not fed back: the
-    # cycle stays whatever it asks) raises the alarm on its fourth swing; the detune reaction's
-    # crossover is then w_u / DETUNE_RATIO. The alarm's own count once halved it the period
-    # after it was raised: every reaction ran at half the crossover meant.
+def alarmed(period_s: float) -> tuple[object, FloatArray, float, int]:
+    """A controller with the product's reaction whose force error cycles at 200 N and
+    ``period_s`` (its output not fed back: the cycle stays whatever it asks) until the alarm
+    and 10 periods more: the controller, its state, the control period and the alarm's
+    period index."""
     experiment = load_experiment(FIG8).with_sets([PRODUCT_REACTION])
     controller = make_controller(experiment.controller)
-    state = controller.arrays[1]
-    dt, period_s = experiment.controller.control_period_s, 0.6
-    w_u = 2.0 * np.pi / period_s
+    dt, w_u = experiment.controller.control_period_s, 2.0 * np.pi / period_s
     alarm_k = None
     for k in range(400):
         phase = w_u * k * dt
@@ -226,10 +234,48 @@ def test_the_detune_reaction_runs_at_the_crossover_the_cycle_gives():
             alarm_k = k
         if alarm_k is not None and k >= alarm_k + 10:   # four more swings would take 1.2 s
             break
-    assert alarm_k is not None and alarm_k * dt < 3.0 * period_s
+    assert alarm_k is not None
+    return controller, controller.arrays[1], dt, alarm_k
+
+
+def test_the_detune_reaction_runs_at_the_crossover_the_cycle_gives():
+    # The cycle raises the alarm on its fourth swing; the detune reaction's crossover is then
+    # w_u / DETUNE_RATIO. The alarm's own count once halved it the period after it was raised:
+    # every reaction ran at half the crossover meant.
+    period_s = 0.6
+    _, state, dt, alarm_k = alarmed(period_s)
+    assert alarm_k * dt < 3.0 * period_s
     # the half-periods are read at turning points found one control period late at most:
     # 0.01 s in 0.3 s, 4 %
+    w_u = 2.0 * np.pi / period_s
     assert state[CS_O_CROSSOVER] == pytest.approx(w_u / DETUNE_RATIO, rel=0.04)
+
+
+@pytest.mark.parametrize(('rate_per_s', 'overshoot', 'quickened'), [
+    (1.6, False, TAIL_RATE_PER_S / 1.6),   # sluggish: raised by the ratio of the rates
+    (0.5, False, DETUNE_RATIO / FASTEST_RATIO),   # very sluggish: raised to the bound
+    (3.0, False, 1.0),   # brisk: left
+    (1.0, True, 1.0),   # overshoots before it comes back: not sluggish, left
+], ids=['sluggish', 'bounded', 'brisk', 'overshoot'])
+def test_a_sluggish_return_quickens_the_reaction(rate_per_s, overshoot, quickened):
+    # After the alarm, an excursion of ln(F / F_ref) from 0.3 decaying as exp(-rate t) (a
+    # depth step's return, the controller's output not fed back): where it comes back slower
+    # than TAIL_RATE_PER_S without changing sign, the crossover is raised by TAIL_RATE_PER_S
+    # over the rate it measured, at most to w_u / FASTEST_RATIO.
+    period_s = 0.6
+    controller, state, dt, _ = alarmed(period_s)
+    detuned = state[CS_O_CROSSOVER]
+    for k in range(round(4.0 / dt)):
+        share = 0.3 * np.exp(-rate_per_s * k * dt)
+        if overshoot:   # a return that dips to -0.26 on its way back
+            share -= 0.4 * np.sin(np.pi * min(k * dt / 1.5, 1.0))
+        force = 500.0 * np.exp(share)
+        out = controller.update(force, -rate_per_s * share * force)
+        controller.applied(out.override_pct, True, int(Reason.NORMAL))
+    # the return's time, ln 3 / rate, counted in control periods: 0.01 s in 0.69 s, 1.5 %;
+    # the bound from the cycle's half-periods as above, 4 %
+    assert state[CS_O_CROSSOVER] == pytest.approx(detuned * quickened, rel=0.04)
+    assert state[CS_O_CROSSOVER] <= 2.0 * np.pi / period_s / FASTEST_RATIO * 1.04
 
 
 @pytest.mark.parametrize('machine', ['second_order_slow', 'kienzle_0p6_noisy_dead_time'])

@@ -82,14 +82,17 @@ C_LAW = C_DRIFT + drift.PARAMS
 # the log of the force's share of the reference the detune reaction saw last period, the swing
 # before the last, whether the last two swings are the loop's own (1) or the last is the
 # third after a kick (0: the one before it was the kick's), and whether the loop is open (1:
-# the PMC applied a level the law did not ask for, .update.controller_applied); the error's
+# the PMC applied a level the law did not ask for, .update.controller_applied), the alarmed
+# cycle's mean half-period, the time since the detune reaction's excursion came back under
+# its upper bound (-1: none timed, .update._quicken) and that excursion's sign; the error's
 # mean while the request is pinned at an end (.update._track_reach).
 CS_HELD, CS_CARRY, CS_PINNED, CS_RESETS, CS_SIDE, CS_ENGAGED = range(6)
 (CS_O_DIR, CS_O_EXT, CS_O_LAST, CS_O_SWING, CS_O_COUNT, CS_O_SINCE, CS_O_ALARM, CS_O_ALARMS,
  CS_O_MEAN, CS_O_HOLD, CS_O_HALVES, CS_O_CROSSOVER, CS_O_WAIT, CS_O_GREW,
- CS_O_LOG_FORCE, CS_O_SWING_BEFORE, CS_O_PAIRED, CS_O_OPEN) = range(6, 24)
-CS_PIN_ERROR = 24
-CS_DRIFT = 25   # the drift monitor's state (.drift), drift.STATE values
+ CS_O_LOG_FORCE, CS_O_SWING_BEFORE, CS_O_PAIRED, CS_O_OPEN, CS_O_HALF, CS_O_TAIL,
+ CS_O_TAIL_SIGN) = range(6, 27)
+CS_PIN_ERROR = 27
+CS_DRIFT = 28   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
@@ -197,12 +200,13 @@ class ControllerBase(Settings):
         4, 'Oscillation alarm: this many counted swings in a row raise it, each 0.07-2 s after '
         'the one before (noise turns faster) and no smaller than 0.7 of it, or with it no '
         'smaller than 0.7 of the two before (a drifting mean makes every other swing small); '
-        'the third after a rise and a larger return (a depth step or an entry: its two '
-        'swings) counts whatever its size', '-', low=2, high=100, dynamic=True)
+        'the third after a rise and a return at least 0.7 of it (a depth step or an entry: '
+        'its two swings) counts whatever its size', '-', low=2, high=100, dynamic=True)
     oscillation_reaction: str = setting(
         'detune', 'What the oscillation alarm does until the run ends or the tool changes: '
         "a slow PI law on the log of the feed whose crossover is a fifth of the oscillation's "
-        'frequency (detune), hold the mean override of the last second (hold_mean), ask for '
+        'frequency, raised up to 1/3.5 of it where the force comes back slowly after a depth '
+        'step (detune), hold the mean override of the last second (hold_mean), ask for '
         'the programmed feed (programmed_feed), or nothing but the alarm (none)',
         choices=OSCILLATION_REACTIONS, dynamic=True)
     # The drift monitor (.drift): the identified model above and its uncertainties, which

@@ -54,6 +54,7 @@ from turning_force.core.control.law import (
     CS_O_DIR,
     CS_O_EXT,
     CS_O_GREW,
+    CS_O_HALF,
     CS_O_HALVES,
     CS_O_HOLD,
     CS_O_LAST,
@@ -64,6 +65,8 @@ from turning_force.core.control.law import (
     CS_O_SINCE,
     CS_O_SWING,
     CS_O_SWING_BEFORE,
+    CS_O_TAIL,
+    CS_O_TAIL_SIGN,
     CS_O_WAIT,
     CS_PIN_ERROR,
     CS_PINNED,
@@ -104,14 +107,24 @@ REACH_MEAN_S = 0.3
 # still settling) adds to every other swing and takes from the others: one of a growing cycle
 # measured 0.69 of the one before it (once alarmed 2.05 s after the onset); two swings
 # together, a period's peak to peak, carry no drift. After a kick (a depth step or an entry: a
-# rise, then a return larger than it, the override held at the table's end through both), the
-# third swing counts whatever its size: the kick, not the loop, made the two before it large
-# (a 3.5 mm step's return was 705 N, the cycle's swings 175 N: once alarmed 2.46 s after the
-# onset), and the fourth is held to DECAY of the third. A linear loop's transient swings shrink
-# by the same ratio from the third on, so the fourth swing still tells a transient from a
+# rise, then a return at least DECAY of it), the third swing counts whatever its size: the
+# kick, not the loop, made the two before it large (a 3.5 mm step's return was 705 N, the
+# cycle's swings 175 N: once alarmed 2.46 s after the onset; a x3.5 step's rise of 880 N and
+# return of 793 N, then a cycle that grew from 117 N to 340 N: alarmed 2.44 s after the onset
+# while the kick had to be a return larger than its rise), and the fourth is held to DECAY of
+# the third. A linear loop's transient swings shrink by the same ratio from the third on (that
+# step's third was 0.15 of its return), so the fourth swing still tells a transient from a
 # cycle. The mean level sent is taken over MEAN_S.
 OSC_HYSTERESIS, OSC_DECAY, OSC_MEAN_S = 1.0 / 3.0, 0.7, 1.0
 OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.07, 2.0
+# Under the reaction the detector asks whether the reaction's own loop cycles: a swing counts
+# only REACTION_HALF_RATIO times the alarmed cycle's half-period at most (a PI law that
+# cycles does so where the process's phase is between -90 and -180 degrees: above w_u / 4 on
+# the population's loops, dead time and lags), and no kick counts: a depth step's slow return
+# under the reaction (half-periods of 1.8 s against the cycle's 0.19 s) and its small
+# overshoot after a x3 step were read as the reaction cycling, and halved the crossover of 4
+# of the 9 runs the reaction left over the ripple bound on seeds 7 and 23.
+REACTION_HALF_RATIO = 4.0
 # The detune reaction: the limit cycle's frequency w_u = 2 pi / T_u bounds the loop's. The
 # force being about proportional to the feed (F = K u, K set by the depth), the law works on
 # logarithms, where the process is a gain of 1 whatever K: a PI law on the relative feed,
@@ -141,7 +154,23 @@ OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.07, 2.0
 # experiment, was tried in its place: on the generated population it left the loops slower
 # after each depth step and fewer of them under the ripple bound: its integral time, 2.2 T_u,
 # is too long for a depth step every 3 s.)
+# The law is stepped as it is written, on the logarithm: u times exp(-step) (1 - step, its
+# first order, took too much off after a rise and too little after a fall).
 DETUNE_RATIO, DETUNE_P, LOG_FLOOR = 5.0, 0.55, 0.1
+# Calm but not sluggish: w_u / DETUNE_RATIO is safe on every loop, slow on the slowest (a
+# depth step's error still 25-40 N off 2 s after it). The reaction times its own returns:
+# where an excursion of ln(F / F_ref) beyond TAIL_HIGH comes back to TAIL_LOW without
+# overshoot at less than TAIL_RATE_PER_S, the crossover is raised by the ratio (a pattern-
+# recognising retune, as Foxboro's EXACT: Kraus & Myron, Control Engineering, 1984),
+# at most to w_u / FASTEST_RATIO. The ripple bound asks the 1 s from 2 s after a step to stay
+# within 25 N (0.05 of the reference): a residue of 0.6 (a x3 step after the proportional
+# part) decays under that at about 2 per second. At w_u / 3 the reaction cycled on its own on
+# loops with g near 1 (above); w_u / 3.5 is the most it is given. Tried and left: the cycle's
+# amplitude ratio as the loop's gain margin (a describing function: the relative swing of the
+# force over that of the feed; the uncommissioned SMC's cycle is a relay's, 0-150 %) to speed
+# the reaction up to a gain margin of 3 or 5: it did not tell the loops that settle faster
+# from those that overshoot (ratios 0.15-0.35 on both), 44-52 of the 54 of seed 23 calmed.
+TAIL_HIGH, TAIL_LOW, TAIL_RATE_PER_S, FASTEST_RATIO = 0.15, 0.05, 2.0, 3.5
 # The law starts from the level the force implies, the force being about proportional
 # to the feed: the level held scaled by ENTRY_SHARE F_ref / F, so that the force approaches from
 # below, after the gate has set the feed (the air, an entry, the dial), once the force has
@@ -207,11 +236,16 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     alarm if it is large, took OSC_HALF_MIN_S to OSC_HALF_MAX_S, and the cycle does not die
     away: the last two swings together (a period's peak to peak) at least OSC_DECAY of the two
     before; the third after a kick whatever its size against the kick's, the fourth at least
-    OSC_DECAY of the third. Otherwise the count starts afresh."""
+    OSC_DECAY of the third. Otherwise the count starts afresh. Under the alarm (the reaction
+    running), no kick, and half-periods of REACTION_HALF_RATIO times the alarmed cycle's at
+    most."""
     swing, half = abs(extreme - cs[CS_O_LAST]), cs[CS_O_SINCE]
     last, before = cs[CS_O_SWING], cs[CS_O_SWING_BEFORE]
-    counts = swing >= cp[C_OSC_SWING] and OSC_HALF_MIN_S <= half <= OSC_HALF_MAX_S
-    kicked = cs[CS_O_COUNT] == 2.0 and cs[CS_O_GREW] != 0.0
+    slowest = OSC_HALF_MAX_S if cs[CS_O_ALARM] == 0.0 else pymin(
+        OSC_HALF_MAX_S, REACTION_HALF_RATIO * cs[CS_O_HALF])
+    counts = swing >= cp[C_OSC_SWING] and OSC_HALF_MIN_S <= half <= slowest
+    kicked = cs[CS_O_COUNT] == 2.0 and cs[CS_O_ALARM] == 0.0 and (
+        cs[CS_O_GREW] != 0.0 or last >= OSC_DECAY * before)
     lasting = kicked or swing >= OSC_DECAY * last or (
         cs[CS_O_PAIRED] != 0.0 and swing + last >= OSC_DECAY * (last + before))
     cs[CS_O_GREW] = 1.0 if swing >= last else 0.0
@@ -243,8 +277,10 @@ def _alarm(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
     reaction = int(cp[C_OSC_REACTION])
     cs[CS_O_HOLD] = clip(cp, 100.0 if reaction == PROGRAMMED_FEED else cs[CS_O_MEAN])
     cs[CS_O_WAIT] = 0.0
-    period = 2.0 * cs[CS_O_HALVES] / cs[CS_O_COUNT]
+    cs[CS_O_HALF] = cs[CS_O_HALVES] / cs[CS_O_COUNT]
+    period = 2.0 * cs[CS_O_HALF]
     cs[CS_O_CROSSOVER] = 2.0 * math.pi / (period * DETUNE_RATIO)
+    cs[CS_O_TAIL] = -1.0
     cs[CS_O_LOG_FORCE] = _log_share(cp, error)
 
 
@@ -287,6 +323,29 @@ def _log_share(cp: np.ndarray, error: float) -> float:
 
 
 @compiled
+def _quicken(cp: np.ndarray, cs: np.ndarray, share: float) -> None:
+    """The detune reaction's crossover raised where the loop is sluggish: an excursion of the
+    log error ``share`` beyond TAIL_HIGH that comes back to TAIL_LOW without changing sign
+    (no overshoot) slower than TAIL_RATE_PER_S (its time, ln(TAIL_HIGH / TAIL_LOW) over the
+    rate) raises the crossover by the ratio of the two, up to w_u / FASTEST_RATIO."""
+    size, sign = abs(share), 1.0 if share > 0.0 else -1.0
+    if size >= TAIL_HIGH:
+        cs[CS_O_TAIL], cs[CS_O_TAIL_SIGN] = 0.0, sign
+    elif cs[CS_O_TAIL] >= 0.0:
+        if sign != cs[CS_O_TAIL_SIGN]:   # overshot: not sluggish
+            cs[CS_O_TAIL] = -1.0
+            return
+        cs[CS_O_TAIL] += cp[C_PERIOD]
+        if size <= TAIL_LOW:
+            rate = math.log(TAIL_HIGH / TAIL_LOW) / cs[CS_O_TAIL]
+            if rate < TAIL_RATE_PER_S:
+                cs[CS_O_CROSSOVER] = pymax(cs[CS_O_CROSSOVER], pymin(
+                    cs[CS_O_CROSSOVER] * TAIL_RATE_PER_S / rate,
+                    math.pi / (cs[CS_O_HALF] * FASTEST_RATIO)))
+            cs[CS_O_TAIL] = -1.0
+
+
+@compiled
 def _react(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> float:
     """The reaction's request while the alarm holds: the detune reaction's PI law on the log of
     the relative feed (DETUNE_RATIO, DETUNE_P), kept inside the table, or the held level. After
@@ -300,8 +359,9 @@ def _react(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> float:
             if force >= ENTRY_FORCE_SHARE * cp[C_REF] and abs(rate) <= ENTRY_RATE_PER_S * force:
                 cs[CS_O_HOLD], cs[CS_O_WAIT] = _implied(cp, cs[CS_O_HOLD], force), 0.0
             return cs[CS_O_HOLD]
+        _quicken(cp, cs, share)
         step = cs[CS_O_CROSSOVER] * cp[C_PERIOD] * share + DETUNE_P * change
-        cs[CS_O_HOLD] = clip(cp, cs[CS_O_HOLD] * (1.0 - pymin(pymax(step, -0.5), 0.5)))
+        cs[CS_O_HOLD] = clip(cp, cs[CS_O_HOLD] * math.exp(-pymin(pymax(step, -0.5), 0.5)))
     return cs[CS_O_HOLD]
 
 
