@@ -43,8 +43,6 @@ __all__ = ['MEASURED_FORCE_TOPIC', 'calibrate_map_sessions', 'cut_depth_mm', 'fo
 FloatArray = npt.NDArray[np.float64]
 
 MEASURED_FORCE_TOPIC = 'force/measured'
-# The PMC runs at the programmed feed until the bridge first answers.
-PROGRAMMED_FEED_PCT = 100.0
 
 
 def _measured_messages(path: Path, axis: str) -> Iterator[tuple[float, float]]:
@@ -107,7 +105,9 @@ def recording_from_session(session: Session, axis: str = 'z') -> Recording:
         periods = {b.sample_period_s for b in session.blocks}
         raise BagError(f'{session.path}: blocks of {sorted(lengths)} samples at '
                        f'{sorted(periods)} s: identification needs one block size and rate')
-    applied = applied_overrides(session.signals['answered_override_pct'], PROGRAMMED_FEED_PCT)
+    # until the bridge first answers, the PMC holds the level the axis approached at
+    applied = applied_overrides(session.signals['answered_override_pct'],
+                                e.plant.approach_override_pct)
     status = session.signals['estimate_status']
     currents = clarke_park(c.phase_u_a, c.phase_v_a, c.rotor_angle_rad)[1]
     return Recording(
