@@ -78,9 +78,8 @@ def assert_same_run(got: CoreRun, expected: CoreRun) -> None:
 def stepped(e: Experiment) -> CoreRun:
     """The closed loop one block at a time, as the graph's nodes run it: the plant, then
     ControlChain (estimator, controller, gate: each a compiled function called per block)."""
-    table = get_table(e.bridge.override_table)
     chain = ControlChain(e.estimator, e.controller, e.bridge)
-    applied = table.quantise(e.controller.initial_override_pct)
+    applied = e.plant.approach_override_pct
     plant = LathePlant(e.plant, initial_override_pct=applied)
     n = round(e.run.duration_s / e.run.control_period_s)
     m = e.plant.samples_per_block

@@ -104,6 +104,42 @@ def test_an_interrupted_cut_enters_cleanly_with_the_product_entry_feed():
     assert clean['steady_mean_abs_error_n'] <= 5.0
 
 
+def test_a_program_that_starts_at_the_work_approaches_at_the_entry_feed():
+    # The run's t = 0 is an entry: the axis was feeding in air just before. With the product's
+    # entry feed the PMC held that level in air, so the first entry meets the work at it, as
+    # every later one does. Here the program starts in a 3 mm cut, whose holding override is
+    # 114 / 3 = 38 %: entered at the programmed feed the force heads for 3 x 440 = 1320 N, 820
+    # N over the reference, and the servo's 0.17 s lag lets it get well past 300 N over before
+    # the lower feed arrives; at the 30 % entry feed it starts under the reference.
+    program = ['lathe_sim.depth_times_s=[0.0, 3.0, 4.0]', 'lathe_sim.depth_mm=[3.0, 0.0, 1.0]',
+               'experiment.duration_s=7.0', PRODUCT_ENTRY]
+    entered = load_experiment(FIG8).with_sets(program)
+    assert entered.plant.approach_override_pct == 30.0   # the entry feed, a table level
+    clean = simulate(entered)
+    assert clean.trace['applied_override_pct'][0] == 30.0
+    assert clean.metrics['entry_overshoot_n'] <= 100.0   # the bound at an entry
+    assert clean.metrics['steady_mean_abs_error_n'] <= 5.0
+    # A file that says the axis approached at the programmed feed is taken at its word.
+    fast = simulate(entered.with_sets(['lathe_sim.approach_override_pct=100.0']))
+    assert fast.metrics['entry_overshoot_n'] > 300.0
+
+
+def test_the_approach_is_the_level_the_pmc_holds_in_air():
+    base = load_experiment(FIG8)   # Park's file: no entry feed, the programmed feed
+    assert base.plant.approach_override_pct == 100.0
+    assert base.with_sets(['force_controller.initial_override_pct=60.0']
+                          ).plant.approach_override_pct == 60.0
+    entry = base.with_sets([PRODUCT_ENTRY])
+    assert entry.plant.approach_override_pct == 30.0
+    # never above the controller's request; a bridge not armed holds no entry feed
+    assert entry.with_sets(['force_controller.initial_override_pct=20.0']
+                           ).plant.approach_override_pct == 20.0
+    assert entry.with_sets(['experiment.arm_bridge=false']).plant.approach_override_pct == 100.0
+    # quantised to the machine's table (Park's four-bit FANUC: 10 % steps, the lower of a tie)
+    assert base.with_sets(['pmc_bridge.air_cut_override_pct=25.0']
+                          ).plant.approach_override_pct == 20.0
+
+
 @pytest.mark.parametrize('law', ['pi'])
 def test_a_law_out_of_the_cut_starts_from_the_applied_override(law):
     # Anti-windup: no force for a second pushes a law with memory of its feed (an integral, a

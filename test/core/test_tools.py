@@ -84,8 +84,8 @@ def test_the_compiled_loop_switches_as_the_per_block_chain_does():
     chain = ControlChain(e.estimator, e.controller, e.bridge)
     from turning_force.core.plant.lathe import LathePlant
 
-    plant = LathePlant(e.plant, initial_override_pct=e.controller.initial_override_pct)
-    applied = 100.0
+    applied = e.plant.approach_override_pct
+    plant = LathePlant(e.plant, initial_override_pct=applied)
     decided = []
     for _ in range(len(run.chain)):
         block = plant.step(applied)

@@ -200,6 +200,22 @@ def test_a_file_that_keeps_the_defaults_loads(tmp_path):
     assert with_parameters_file(fig8, path).resolved_params() == fig8.resolved_params()
 
 
+def test_a_session_entered_at_the_entry_feed_is_read_at_it(capfd, tmp_path):
+    # A production cut with the product's entry feed: the axis approached at 30 %, and the PMC
+    # held it until the bridge first answered. Identification reads the first block at the
+    # level its measured feed implies (taken as 100 %, Kim's 80 ms dead time read 0 and a
+    # second-order servo in its place).
+    bag = tmp_path / 'production'
+    assert main(['run', str(EXPERIMENTS / 'park1998_fig8.yaml'), '--core', '--out', str(bag),
+                 '--json', '--set', 'experiment.duration_s=2.0',
+                 '--set', 'pmc_bridge.air_cut_override_pct=30.0']) == 0
+    capfd.readouterr()
+    session = read_session(bag)
+    rec = recording_from_session(session)
+    assert rec.override_pct[0] == 30.0
+    np.testing.assert_array_equal(rec.override_pct, session.signals['applied_override_pct'])
+
+
 def test_identify_a_production_session_keeps_the_prior_for_friction(capfd, tmp_path):
     """Re-commissioning from yesterday's parts: Park's Fig. 8 job cut (core loop, recorded) on
     Kim's FANUC whose friction rose 25 %; the job has no air move."""

@@ -32,6 +32,7 @@ from turning_force.core.errors import ConfigError
 from turning_force.core.estimation.settings import EstimatorSettings
 from turning_force.core.metrics import MetricSettings
 from turning_force.core.plant.settings import PlantSettings
+from turning_force.core.pmc.overrides import get_table
 from turning_force.core.pmc.settings import BridgeSettings
 from turning_force.core.settings import Settings, setting
 from turning_force.core.yamlfile import load_yaml, read_text, yaml_error_text
@@ -259,12 +260,14 @@ def build_experiment(source: str, sections: Mapping[str, Mapping[str, Any]]) -> 
         raise ConfigError(f'{SHARED}: {names}: no node declares these parameters')
     run, bridge = _resolve_arming(sections, _as(built['experiment'], RunSettings),
                                   _as(built['pmc_bridge'], BridgeSettings))
+    controller = _as(built['force_controller'], ControllerSettings)
     experiment = Experiment(
         source=source,
         run=run,
-        plant=_as(built['lathe_sim'], PlantSettings),
+        plant=_resolve_approach(sections, _as(built['lathe_sim'], PlantSettings), controller,
+                                bridge),
         estimator=_as(built['force_estimator'], EstimatorSettings),
-        controller=_as(built['force_controller'], ControllerSettings),
+        controller=controller,
         bridge=bridge,
         sections={k: dict(v) for k, v in sections.items()},
     )
@@ -291,6 +294,21 @@ def _resolve_arming(sections: Mapping[str, Mapping[str, Any]], run: RunSettings,
                 f'{run.arm_bridge!r}; give one of them')
         return run.replace(arm_bridge=bridge.armed), bridge
     return run, bridge.replace(armed=run.arm_bridge)
+
+
+def _resolve_approach(sections: Mapping[str, Mapping[str, Any]], plant: PlantSettings,
+                      controller: ControllerSettings, bridge: BridgeSettings) -> PlantSettings:
+    """The override the simulated axis approached the work at before t = 0, where the file
+    does not say: the level the PMC holds while the tool is in air. An armed bridge with an
+    entry feed holds that (never above the controller's request, its initial override); else
+    the PMC holds the controller's initial override. Quantised to the machine's table: the
+    simulated lathe, the core loop and the graph start from the same level."""
+    if 'approach_override_pct' in sections.get('lathe_sim', {}):
+        return plant
+    initial = controller.initial_override_pct
+    entry = bridge.air_cut_override_pct
+    level = min(initial, entry) if bridge.armed and entry > 0 else initial
+    return plant.replace(approach_override_pct=get_table(plant.override_table).quantise(level))
 
 
 def _as(value: object, kind: type[_T]) -> _T:

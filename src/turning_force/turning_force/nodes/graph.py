@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from turning_force.core.experiment import build_experiment
+from turning_force.core.experiment import Experiment, build_experiment
 from turning_force.core.overlay import read_parameters
 from turning_force.io.pmc_server import PmcSimulation, simulate_pmc
 from turning_force.nodes.force_controller import ForceControllerNode
@@ -33,18 +33,19 @@ from turning_force.nodes.pmc_bridge import PmcBridgeNode
 from turning_force.nodes.session_recorder import SessionRecorderNode
 from turning_force.nodes.spin import run_nodes
 
-__all__ = ['arms_like_run', 'machine_main', 'main']
+__all__ = ['like_run', 'machine_main', 'main']
 
 
-def arms_like_run(args: Sequence[str]) -> bool:
-    """Whether ``turning-force run`` would arm the bridge with the ``--params-file`` files of
-    ``args`` (later files override earlier ones, as ROS reads them)."""
+def like_run(args: Sequence[str]) -> Experiment:
+    """What ``turning-force run`` makes of the ``--params-file`` files of ``args`` (later files
+    override earlier ones, as ROS reads them): whether it arms the bridge, and the override the
+    simulated axis approaches at."""
     sections: dict[str, dict[str, object]] = {}
     files = [args[k + 1] for k, arg in enumerate(args[:-1]) if arg == '--params-file']
     for path in files:
         for name, params in read_parameters(path).items():
             sections.setdefault(name, {}).update(params)
-    return build_experiment(' + '.join(files) or 'defaults', sections).bridge.armed
+    return build_experiment(' + '.join(files) or 'defaults', sections)
 
 
 def _machine(servers: list[PmcSimulation] | None = None, arm: bool = False) -> list[Node]:
@@ -72,9 +73,11 @@ def _machine(servers: list[PmcSimulation] | None = None, arm: bool = False) -> l
 def main(args: Sequence[str] | None = None) -> int:
     servers: list[PmcSimulation] = []
     argv = list(sys.argv if args is None else args)
+    run = like_run(argv)
+    approach = Parameter('approach_override_pct', value=run.plant.approach_override_pct)
     try:
-        return run_nodes(lambda: [LatheSimNode(), *_machine(servers, arms_like_run(argv))],
-                         args)
+        return run_nodes(lambda: [LatheSimNode(parameter_overrides=[approach]),
+                                  *_machine(servers, run.bridge.armed)], args)
     finally:
         for server in servers:
             server.stop()

@@ -76,7 +76,7 @@ class LatheSimNode(Node):
         self.parameters = SettingsParameters(self, PlantSettings)
         settings = self.parameters.current
         self._table = get_table(settings.override_table)
-        self._applied_pct = 100.0  # the PMC starts at the programmed feed
+        self._applied_pct = settings.approach_override_pct   # the level the axis approached at
         self._coils = self._coil_reader(settings.override_table)
         self._plant = LathePlant(settings, initial_override_pct=self._applied_pct)
         # Plant time 0 is this node's clock at start (0 in lock-step sim time).

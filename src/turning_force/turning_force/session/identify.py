@@ -33,6 +33,7 @@ from turning_force.core.identify import (
 )
 from turning_force.core.overlay import with_parameters_file
 from turning_force.core.plant.drive import clarke_park
+from turning_force.core.pmc.overrides import get_table
 from turning_force.core.yamlfile import yaml_text
 from turning_force.session.bag import BagError, typestore
 from turning_force.session.reader import Session, applied_overrides, read_session
@@ -43,8 +44,6 @@ __all__ = ['MEASURED_FORCE_TOPIC', 'calibrate_map_sessions', 'cut_depth_mm', 'fo
 FloatArray = npt.NDArray[np.float64]
 
 MEASURED_FORCE_TOPIC = 'force/measured'
-# The PMC runs at the programmed feed until the bridge first answers.
-PROGRAMMED_FEED_PCT = 100.0
 
 
 def _measured_messages(path: Path, axis: str) -> Iterator[tuple[float, float]]:
@@ -95,6 +94,18 @@ def _measured_per_block(session: Session, axis: str) -> FloatArray | None:
     return out
 
 
+def _first_level(session: Session) -> float:
+    """The level the PMC held until the bridge first answered: the one the feed the DAQ
+    measured in the first block implies (the axis approached the work at it; at rest, none), a
+    level of the machine's table. A session does not say it otherwise: the PMC's dial, the
+    entry feed, an older version's programmed feed."""
+    assert session.experiment is not None and session.currents is not None
+    e = session.experiment
+    feed = float(np.mean(np.abs(session.currents.feed_rate_mm_min[0])))
+    table = get_table(e.bridge.override_table)
+    return table.quantise(100.0 * feed / e.controller.programmed_feed_rate_mm_min)
+
+
 def recording_from_session(session: Session, axis: str = 'z') -> Recording:
     """What identification reads from a session (see the module's text)."""
     if session.experiment is None:
@@ -107,7 +118,7 @@ def recording_from_session(session: Session, axis: str = 'z') -> Recording:
         periods = {b.sample_period_s for b in session.blocks}
         raise BagError(f'{session.path}: blocks of {sorted(lengths)} samples at '
                        f'{sorted(periods)} s: identification needs one block size and rate')
-    applied = applied_overrides(session.signals['answered_override_pct'], PROGRAMMED_FEED_PCT)
+    applied = applied_overrides(session.signals['answered_override_pct'], _first_level(session))
     status = session.signals['estimate_status']
     currents = clarke_park(c.phase_u_a, c.phase_v_a, c.rotor_angle_rad)[1]
     return Recording(

@@ -979,7 +979,7 @@ def estimate_metrics(session: Session, experiment: Experiment, force_n: FloatArr
     reference = (np.full_like(force_n, experiment.controller.reference_force_n)
                  if reference_n is None else reference_n)
     depth = session.signals['depth_mm'] if session.has_truth else np.ones_like(force_n)
-    applied = applied_overrides(answered_pct, experiment.controller.initial_override_pct)
+    applied = applied_overrides(answered_pct, experiment.plant.approach_override_pct)
     keep = np.isfinite(force_n) & np.isfinite(reference) & np.isfinite(depth)
     return compute_metrics(
         session.t_s[keep], force_n[keep], reference[keep], depth[keep], applied[keep],

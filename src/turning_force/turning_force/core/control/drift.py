@@ -346,7 +346,13 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
     none was told), the window on the estimated ``force`` while ``engaged``, the tests."""
     if dp[D_ON] == 0.0:
         return
-    applied = ds[DS_APPLIED] if math.isfinite(ds[DS_APPLIED]) else held
+    told = math.isfinite(ds[DS_APPLIED])
+    if ds[DS_STARTED] == 0.0 and not told:
+        # the bank starts at rest at the first level the PMC is told to have applied: the
+        # controller's own ``held`` is no reading of where the axis is (it approached the work
+        # at the PMC's level in air, the entry feed where there is one)
+        return
+    applied = ds[DS_APPLIED] if told else held
     if not math.isfinite(applied):
         return
     _advance(dp, ds, applied / 100.0)

@@ -20,7 +20,6 @@ from turning_force.core.kernel.chain import ControlChain
 from turning_force.core.plant.drive import clarke_park
 from turning_force.core.plant.lathe import LathePlant
 from turning_force.core.plant.settings import Dynamometer, PlantSettings
-from turning_force.core.pmc.overrides import get_table
 
 __all__ = ['CoreRecording', 'record']
 
@@ -77,9 +76,8 @@ def record(experiment: Experiment, name: str | None = None) -> CoreRecording:
     """Run ``experiment`` through the core loop and keep its samples. The dynamometer reads
     every block when ``lathe_sim.dynamometer`` is set (else the measured force is absent)."""
     plant_settings = experiment.plant
-    table = get_table(experiment.bridge.override_table)
     chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge)
-    applied = table.quantise(experiment.controller.initial_override_pct)
+    applied = plant_settings.approach_override_pct
     plant = LathePlant(plant_settings, initial_override_pct=applied)
     dynamometer = (Dynamometer(plant_settings.dynamometer_noise_n, plant_settings.seed)
                    if plant_settings.dynamometer else None)

@@ -81,7 +81,7 @@ def run_loop(experiment: Experiment, kept: tuple[FloatArray, ...] = ()) -> Simul
     # PMC starts at) ...
     chain = ControlChain(experiment.estimator, experiment.controller, experiment.bridge)
     ep, es, cp, cs, clevels, gp, gs, glevels, ctools, gtools = chain.arrays(dt)
-    applied = chain.gate.table.quantise(experiment.controller.initial_override_pct)
+    applied = experiment.plant.approach_override_pct
     # ... and the lathe it acts on: its arrays, the machine's inputs at each block's end, and
     # when the depth changes (for the metrics).
     plant = LathePlant(experiment.plant, initial_override_pct=applied)

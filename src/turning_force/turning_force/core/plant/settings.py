@@ -44,6 +44,11 @@ class PlantSettings(FeedDriveSettings):
     seed: int = setting(1, 'Seed of the sensor and process noise', low=0, unit='-', high=INT64_MAX)
     control_period_s: float = shared.control_period_s()
     override_table: str = override_table()
+    approach_override_pct: float = setting(
+        100.0, 'The override the axis approached the work at, before t = 0 (the PMC level it '
+        'feeds at when the run starts); not given in a file: the level the PMC holds in air, '
+        'the entry feed (pmc_bridge.air_cut_override_pct) where the bridge is armed and has '
+        'one, else force_controller.initial_override_pct', '%', low=0.0, high=1000.0)
     sample_rate_hz: float = setting(1000.0, 'DAQ sample rate of the phase currents', 'Hz',
                                     low=10.0, high=100000.0)
     spindle_speed_rpm: float = shared.spindle_speed_rpm()
