@@ -14,10 +14,14 @@ entry transient has died away), each member's force is fitted as ``F = K y + c``
 squares. Three tests follow, each a likelihood ratio on the residual's sum of squares, its
 effective sample count taken from the residual's lag-one autocorrelation ``rho`` (Bartlett:
 ``n_eff = n (1 - rho) / (1 + rho)``; ``rho`` at most :data:`RHO_MAX`, the estimate's own
-noise: what the best member leaves more correlated than that is slow misfit), against ``drift_sigmas`` squared (chi-square, one degree
-of freedom; Basseville & Nikiforov, Detection of Abrupt Changes, 1993, Sec. 4.2 and 7.2):
+noise: what the best member leaves more correlated than that is slow misfit), against
+``drift_sigmas`` squared (chi-square, one degree of freedom; Basseville & Nikiforov, Detection
+of Abrupt Changes, 1993, Sec. 4.2 and 7.2):
 
-- the lag: the best member of the bank against the identified one (PMC dead time or servo);
+- the lag: the best member of the bank against the identified one (PMC dead time or servo),
+  each fitted with its gain ramping in the window, ``F = K y + R t y + c`` (a taper's depth
+  grows the gain through every window; fitted with one gain, that ramp was the larger part
+  of every member's residual, and no lag drift on a taper was named);
 - the level, on the member that fits best: the gain ``F = K y`` against the identified
   ``F = K_id y`` (process gain, ``K / K_id``), or an offset ``F = K_id y + c`` (the feed-drive
   friction the estimator subtracts: ``c`` over the identified friction's share of the force);
@@ -125,9 +129,9 @@ DS_HIST = 19
 REZ_NONE, REZ_READING, REZ_PAUSED, REZ_READ = range(4)
 DS_MODELS = DS_HIST + HISTORY
 # per member: servo state z0 z1, output y, sums y, y^2, y F, and of its residual: squared,
-# times the one before, the one before
-Z0, Z1, Y, SY, SYY, SYF, SRR, SR1, RPREV = range(9)
-S_FIELDS = 9
+# times the one before, the one before; sums of u = t y (t the time in the cut), u^2, u y, u F
+Z0, Z1, Y, SY, SYY, SYF, SRR, SR1, RPREV, SU, SUU, SUY, SUF = range(13)
+S_FIELDS = 13
 STATE = DS_MODELS + N_MODELS * S_FIELDS
 
 
@@ -293,16 +297,30 @@ def _forget(ds: np.ndarray) -> None:
 
 
 @compiled
-def _sse(ds: np.ndarray, m: int) -> float:
-    """Member m's residual sum of squares under ``F = K y + c``."""
+def _fit(ds: np.ndarray, m: int) -> tuple[float, float, float, float]:
+    """Member m's least squares fit over the window, ``F = K y + R t y + c`` (the gain ramps at
+    R per second of the cut ``t``: a taper's depth, or a depth the loop's window straddles,
+    lands there, not in the lag): K, R, c and the residual sum of squares (inf where the
+    window cannot fit it). Where the ramp cannot be told from the gain (the window's first
+    samples), ``F = K y + c``."""
     at = DS_MODELS + m * S_FIELDS
-    s1, sf, sy, syy, syf = ds[DS_S1], ds[DS_SF], ds[at + SY], ds[at + SYY], ds[at + SYF]
-    det = s1 * syy - sy * sy
-    if not det > 0.0:
-        return math.inf
-    k = (s1 * syf - sy * sf) / det
+    s1, sf, sff = ds[DS_S1], ds[DS_SF], ds[DS_SFF]
+    sy, syy, syf = ds[at + SY], ds[at + SYY], ds[at + SYF]
+    su, suu, suy, suf = ds[at + SU], ds[at + SUU], ds[at + SUY], ds[at + SUF]
+    # the normal equations' cofactors (symmetric: [[syy, suy, sy], [suy, suu, su], [sy, su, s1]])
+    c11, c12, c13 = suu * s1 - su * su, sy * su - suy * s1, suy * su - sy * suu
+    c22, c23, c33 = syy * s1 - sy * sy, suy * sy - syy * su, syy * suu - suy * suy
+    det = syy * c11 + suy * c12 + sy * c13
+    if det > 1e-9 * syy * suu * s1:
+        k = (c11 * syf + c12 * suf + c13 * sf) / det
+        r = (c12 * syf + c22 * suf + c23 * sf) / det
+        c = (c13 * syf + c23 * suf + c33 * sf) / det
+        return k, r, c, pymax(sff - k * syf - r * suf - c * sf, 1e-12 * sff)
+    if not c22 > 0.0:
+        return 0.0, 0.0, 0.0, math.inf
+    k = (s1 * syf - sy * sf) / c22
     c = (sf - k * sy) / s1
-    return pymax(ds[DS_SFF] - k * syf - c * sf, 1e-12 * ds[DS_SFF])
+    return k, 0.0, c, pymax(sff - k * syf - c * sf, 1e-12 * sff)
 
 
 @compiled
@@ -411,29 +429,32 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
     ds[DS_S1] = lam * ds[DS_S1] + 1.0
     ds[DS_SF] = lam * ds[DS_SF] + force
     ds[DS_SFF] = lam * ds[DS_SFF] + force * force
-    s1, sf = ds[DS_S1], ds[DS_SF]
+    s1, t = ds[DS_S1], ds[DS_IN_CUT]
     for m in range(N_MODELS):
         at = DS_MODELS + m * S_FIELDS
         y = ds[at + Y]
+        u = t * y
         ds[at + SY] = lam * ds[at + SY] + y
         ds[at + SYY] = lam * ds[at + SYY] + y * y
         ds[at + SYF] = lam * ds[at + SYF] + y * force
+        ds[at + SU] = lam * ds[at + SU] + u
+        ds[at + SUU] = lam * ds[at + SUU] + u * u
+        ds[at + SUY] = lam * ds[at + SUY] + u * y
+        ds[at + SUF] = lam * ds[at + SUF] + u * force
         # the member's residual now, for its lag-one autocorrelation
-        sy, syy = ds[at + SY], ds[at + SYY]
-        det = s1 * syy - sy * sy
-        k = (s1 * ds[at + SYF] - sy * sf) / det if det > 0.0 else 0.0
-        residual = force - k * y - (sf - k * sy) / s1
+        k, r, c, sse = _fit(ds, m)
+        residual = force - k * y - r * u - c if math.isfinite(sse) else 0.0
         ds[at + SRR] = lam * ds[at + SRR] + residual * residual
         ds[at + SR1] = lam * ds[at + SR1] + residual * ds[at + RPREV]
         ds[at + RPREV] = residual
     if s1 < (1.0 - math.exp(-1.0)) / (1.0 - lam):   # a window's worth of the cut, first
         return
     threshold = dp[D_SIGMAS] * dp[D_SIGMAS]
-    sse0 = _sse(ds, 0)
+    sse0 = _fit(ds, 0)[3]
     best, best_sse = 0, sse0
     for m in range(1, N_MODELS):
         if _eligible(dp, m):
-            sse = _sse(ds, m)
+            sse = _fit(ds, m)[3]
             if sse < best_sse:
                 best, best_sse = m, sse
     cause, size, std, alt = NONE, 0.0, 0.0, 0.0
