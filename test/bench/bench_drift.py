@@ -4,9 +4,11 @@ with its job's depths: the identified model and the monitor's settings), then it
 the machine unchanged and after each of the issue's drifts: PMC dead time +50 %, process gain
 +40 % (K_s), feed friction +25 %, servo x1.8 (tau, or 1 / w_n). Printed for each: the time from
 the first entry into the cut to the first alarm, the cause named and its size, and a summary:
-the right cause named within 5 s of cutting, and alarms on the unchanged machine::
+the right cause named within 5 s of cutting, and alarms on the unchanged machine. ``--job``
+cuts every machine's job as that one of the generator's (a taper, say) instead::
 
     .venv/bin/python test/bench/bench_drift.py --machines 8 --seed 16
+    .venv/bin/python test/bench/bench_drift.py --machines 6 --seed 16 --job taper
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from turning_force.commands.population import (
+    JOBS,
     Machine,
     draw,
     identified_sets,
@@ -52,11 +55,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--machines', type=int, default=8)
     parser.add_argument('--seed', type=int, default=16)
+    parser.add_argument('--job', choices=sorted(JOBS),
+                        help="every machine's job (default: its own)")
     args = parser.parse_args()
     right = dict.fromkeys(CAUSES[1:], 0)
     false_alarms = 0
     for machine in draw(args.machines, args.seed):
-        machine = replace(machine, drift='', drifted={})   # commissioned as it is
+        # commissioned as it is
+        machine = replace(machine, drift='', drifted={}, job=args.job or machine.job)
         ident, cut_depth = identify_machine(machine)
         identified, monitor = identified_sets(machine, ident, cut_depth)
         print(machine.describe())
@@ -74,7 +80,9 @@ def main() -> None:
                 right[cause] += ok
             print(f'  {cause:14s} alarm at {at_s:5.2f} s: {first or "none":14s} '
                   f'{result.drift or "-"}')
-    print(f'{args.machines} machines, seed {args.seed}: the right cause within {DEADLINE_S:g} s: '
+    job = f', job {args.job}' if args.job else ''
+    print(f'{args.machines} machines, seed {args.seed}{job}: the right cause within '
+          f'{DEADLINE_S:g} s: '
           + ', '.join(f'{cause} {n} of {args.machines}' for cause, n in right.items())
           + f'; alarms on the unchanged machines: {false_alarms} of {args.machines}')
 
