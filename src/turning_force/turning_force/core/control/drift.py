@@ -471,8 +471,10 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
         std = 0.5 * h if cause == DEAD_TIME else 0.5 * (SERVO_RATIO - 1.0) * size
     else:
         # on the identified member: no lag drift found
-        # the job's start, where the depth is known, or anywhere in the job's depths
-        start = ds[DS_CUT_S] <= dp[D_FIRST_S]
+        # the job's start, where the depth is known, or anywhere in the job's depths; the
+        # cut's clock starts at the engagement, which the chip's rise delays (more at an entry
+        # feed), so the start ends the process's settling time before the program's change
+        start = ds[DS_CUT_S] <= dp[D_FIRST_S] - dp[D_SETTLE]
         level = _level(dp, ds, 0, _effective(ds, 0),
                        dp[D_K_FIRST_LO] if start else dp[D_K_LO],
                        dp[D_K_FIRST_HI] if start else dp[D_K_HI])

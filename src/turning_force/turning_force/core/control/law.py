@@ -84,15 +84,17 @@ C_LAW = C_DRIFT + drift.PARAMS
 # third after a kick (0: the one before it was the kick's), and whether the loop is open (1:
 # the PMC applied a level the law did not ask for, .update.controller_applied), the alarmed
 # cycle's mean half-period, the time since the detune reaction's excursion came back under
-# its upper bound (-1: none timed, .update._quicken) and that excursion's sign; the error's
-# mean while the request is pinned at an end (.update._track_reach).
+# its upper bound (-1: none timed, .update._quicken) and that excursion's sign, the level sent
+# summed over the swing under way and over the cycle counted (from the third swing after a
+# kick), and the cycle's time; the error's mean while the request is pinned at an end
+# (.update._track_reach).
 CS_HELD, CS_CARRY, CS_PINNED, CS_RESETS, CS_SIDE, CS_ENGAGED = range(6)
 (CS_O_DIR, CS_O_EXT, CS_O_LAST, CS_O_SWING, CS_O_COUNT, CS_O_SINCE, CS_O_ALARM, CS_O_ALARMS,
  CS_O_MEAN, CS_O_HOLD, CS_O_HALVES, CS_O_CROSSOVER, CS_O_WAIT, CS_O_GREW,
  CS_O_LOG_FORCE, CS_O_SWING_BEFORE, CS_O_PAIRED, CS_O_OPEN, CS_O_HALF, CS_O_TAIL,
- CS_O_TAIL_SIGN) = range(6, 27)
-CS_PIN_ERROR = 27
-CS_DRIFT = 28   # the drift monitor's state (.drift), drift.STATE values
+ CS_O_TAIL_SIGN, CS_O_HSUM, CS_O_CSUM, CS_O_CTIME) = range(6, 30)
+CS_PIN_ERROR = 30
+CS_DRIFT = 31   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
@@ -193,8 +195,10 @@ class ControllerBase(Settings):
                                             'F = K_s d f^g (Kienzle; 1: Park)', low=0.1,
                                             high=2.0, unit='-', cite='Hwang & Chen 1990, Eq. 3')
     oscillation_swing_n: float = setting(
-        40.0, 'Oscillation alarm: a swing of the force error (from one turning point to the '
-        'next) this large counts toward it; 0: no alarm', 'N', low=0.0, high=1e5, dynamic=True,
+        50.0, 'Oscillation alarm: a swing of the force error (from one turning point to the '
+        'next) this large counts toward it (50 N: the peak to peak issue 16 calls an '
+        'oscillation; 40 N alarmed a commissioned loop ringing 48-51 N after a depth step, '
+        'and its reaction left it 12 N off); 0: no alarm', 'N', low=0.0, high=1e5, dynamic=True,
         cite='Astrom & Hagglund 1984 (a limit cycle as a relay experiment)')
     oscillation_swings: int = setting(
         4, 'Oscillation alarm: this many counted swings in a row raise it, each 0.07-2 s after '
