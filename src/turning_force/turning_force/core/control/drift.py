@@ -150,6 +150,7 @@ def identified(ident: Identification, job: Experiment, depths_mm: tuple[float, f
     seen where the depth is known, and the program's start is such a place."""
     ksd = ident.ksd_n_mm
     first_s, first = first_cut(program) if program is not None else (0.0, depths_mm)
+    first_s = max(first_s - engagement_s(ident, job, first[0] / cut_depth_mm), 0.0)
     residual = model_error(ident) / job.controller.reference_force_n
     feed_rate = job.controller.programmed_feed_rate_mm_min
     friction_a = float(ident.friction_model.current_a(np.array([feed_rate]))[0])
@@ -171,6 +172,22 @@ def identified(ident: Identification, job: Experiment, depths_mm: tuple[float, f
         'drift_ksd_first_min_n_mm': ksd.value * first[0] / cut_depth_mm,
         'drift_ksd_first_max_n_mm': ksd.value * first[1] / cut_depth_mm,
     }
+
+
+def engagement_s(ident: Identification, job: Experiment, depth_ratio: float) -> float:
+    """How long after the program's start the cut's clock starts: the tool enters at the
+    level the axis approached at (``approach_override_pct``), and the gate counts it in the cut
+    once the force, rising with tau_c (Park 1998 Eq. 1) to ``K_s d (level)^g``, passes
+    ``engage_force_n``. The monitor's clock runs from there, the program's from the entry: at
+    Park's 1 mm and a 30 % entry feed, 1.4 tau_c apart. 0 where the force there would not
+    pass it."""
+    level = job.plant.approach_override_pct / 100.0
+    steady = (ident.ksd_n_mm.value * depth_ratio * job.controller.programmed_feed_mm_rev
+              * level ** ident.process['cutting_exponent'].value)
+    engage = job.bridge.engage_force_n
+    if not steady > engage:
+        return 0.0
+    return ident.process['cutting_time_constant_s'].value * math.log(steady / (steady - engage))
 
 
 def model_error(ident: Identification) -> float:
@@ -471,10 +488,8 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
         std = 0.5 * h if cause == DEAD_TIME else 0.5 * (SERVO_RATIO - 1.0) * size
     else:
         # on the identified member: no lag drift found
-        # the job's start, where the depth is known, or anywhere in the job's depths; the
-        # cut's clock starts at the engagement, which the chip's rise delays (more at an entry
-        # feed), so the start ends the process's settling time before the program's change
-        start = ds[DS_CUT_S] <= dp[D_FIRST_S] - dp[D_SETTLE]
+        # the job's start, where the depth is known, or anywhere in the job's depths
+        start = ds[DS_CUT_S] <= dp[D_FIRST_S]
         level = _level(dp, ds, 0, _effective(ds, 0),
                        dp[D_K_FIRST_LO] if start else dp[D_K_LO],
                        dp[D_K_FIRST_HI] if start else dp[D_K_HI])
