@@ -12,6 +12,7 @@ and the estimator load (``turning-force run EXP --params FILE``, or a second
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -102,6 +103,8 @@ def _first_level(session: Session) -> float:
     assert session.experiment is not None and session.currents is not None
     e = session.experiment
     feed = float(np.mean(np.abs(session.currents.feed_rate_mm_min[0])))
+    if not math.isfinite(feed):   # a corrupt first block: the level the file's approach says
+        return e.plant.approach_override_pct
     table = get_table(e.bridge.override_table)
     return table.quantise(100.0 * feed / e.controller.programmed_feed_rate_mm_min)
 
