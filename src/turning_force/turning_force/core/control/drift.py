@@ -129,9 +129,10 @@ DS_HIST = 19
 REZ_NONE, REZ_READING, REZ_PAUSED, REZ_READ = range(4)
 DS_MODELS = DS_HIST + HISTORY
 # per member: servo state z0 z1, output y, sums y, y^2, y F, and of its residual: squared,
-# times the one before, the one before; sums of u = t y (t the time in the cut), u^2, u y, u F
-Z0, Z1, Y, SY, SYY, SYF, SRR, SR1, RPREV, SU, SUU, SUY, SUF = range(13)
-S_FIELDS = 13
+# times the one before, the one before; sums of u = t y (t the time in the cut), u^2, u y, u F;
+# its fit's residual sum of squares this period (_fit)
+Z0, Z1, Y, SY, SYY, SYF, SRR, SR1, RPREV, SU, SUU, SUY, SUF, SSE = range(14)
+S_FIELDS = 14
 STATE = DS_MODELS + N_MODELS * S_FIELDS
 
 
@@ -466,6 +467,7 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
         ds[at + SUF] = lam * ds[at + SUF] + u * force
         # the member's residual now, for its lag-one autocorrelation
         k, r, c, sse = _fit(ds, m)
+        ds[at + SSE] = sse   # the tests below read it
         residual = force - k * y - r * u - c if math.isfinite(sse) else 0.0
         ds[at + SRR] = lam * ds[at + SRR] + residual * residual
         ds[at + SR1] = lam * ds[at + SR1] + residual * ds[at + RPREV]
@@ -473,11 +475,11 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
     if s1 < (1.0 - math.exp(-1.0)) / (1.0 - lam):   # a window's worth of the cut, first
         return
     threshold = dp[D_SIGMAS] * dp[D_SIGMAS]
-    sse0 = _fit(ds, 0)[3]
+    sse0 = ds[DS_MODELS + SSE]
     best, best_sse = 0, sse0
     for m in range(1, N_MODELS):
         if _eligible(dp, m):
-            sse = _fit(ds, m)[3]
+            sse = ds[DS_MODELS + m * S_FIELDS + SSE]
             if sse < best_sse:
                 best, best_sse = m, sse
     cause, size, std, alt = NONE, 0.0, 0.0, 0.0

@@ -75,7 +75,7 @@ C_LAW = C_DRIFT + drift.PARAMS
 # applied said so); the oscillation detector's (.update): the direction of the error's current
 # swing (1 rising, -1 falling, 0 not started), its extreme so far, the turning point before,
 # the last swing, the swings counted, the time since the last turn, the alarm (1 while it
-# holds), the alarms raised, the mean level sent, the level the reaction holds (the detune
+# holds), the alarms raised, the level the reaction holds (the detune
 # reaction's integral), the counted swings' half-periods' sum, the detune reaction's
 # crossover, whether it waits for the force to settle (1) after the gate set the feed, and
 # whether the last swing was larger than the one before (1: a kick's return, .update._turn),
@@ -90,11 +90,11 @@ C_LAW = C_DRIFT + drift.PARAMS
 # (.update._track_reach).
 CS_HELD, CS_CARRY, CS_PINNED, CS_RESETS, CS_SIDE, CS_ENGAGED = range(6)
 (CS_O_DIR, CS_O_EXT, CS_O_LAST, CS_O_SWING, CS_O_COUNT, CS_O_SINCE, CS_O_ALARM, CS_O_ALARMS,
- CS_O_MEAN, CS_O_HOLD, CS_O_HALVES, CS_O_CROSSOVER, CS_O_WAIT, CS_O_GREW,
+ CS_O_HOLD, CS_O_HALVES, CS_O_CROSSOVER, CS_O_WAIT, CS_O_GREW,
  CS_O_LOG_FORCE, CS_O_SWING_BEFORE, CS_O_PAIRED, CS_O_OPEN, CS_O_HALF, CS_O_TAIL,
- CS_O_TAIL_SIGN, CS_O_HSUM, CS_O_CSUM, CS_O_CTIME) = range(6, 30)
-CS_PIN_ERROR = 30
-CS_DRIFT = 31   # the drift monitor's state (.drift), drift.STATE values
+ CS_O_TAIL_SIGN, CS_O_HSUM, CS_O_CSUM, CS_O_CTIME) = range(6, 29)
+CS_PIN_ERROR = 29
+CS_DRIFT = 30   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
@@ -210,7 +210,7 @@ class ControllerBase(Settings):
         'detune', 'What the oscillation alarm does until the run ends or the tool changes: '
         "a slow PI law on the log of the feed whose crossover is a fifth of the oscillation's "
         'frequency, raised up to 1/3.5 of it where the force comes back slowly after a depth '
-        'step (detune), hold the mean override of the last second (hold_mean), ask for '
+        "step (detune), hold the alarmed cycle's mean override (hold_mean), ask for "
         'the programmed feed (programmed_feed), or nothing but the alarm (none)',
         choices=OSCILLATION_REACTIONS, dynamic=True)
     # The drift monitor (.drift): the identified model above and its uncertainties, which

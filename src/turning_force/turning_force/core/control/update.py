@@ -62,7 +62,6 @@ from turning_force.core.control.law import (
     CS_O_HSUM,
     CS_O_LAST,
     CS_O_LOG_FORCE,
-    CS_O_MEAN,
     CS_O_OPEN,
     CS_O_PAIRED,
     CS_O_SINCE,
@@ -117,8 +116,8 @@ REACH_MEAN_S = 0.3
 # while the kick had to be a return larger than its rise), and the fourth is held to DECAY of
 # the third. A linear loop's transient swings shrink by the same ratio from the third on (that
 # step's third was 0.15 of its return), so the fourth swing still tells a transient from a
-# cycle. The mean level sent is taken over MEAN_S.
-OSC_HYSTERESIS, OSC_DECAY, OSC_MEAN_S = 1.0 / 3.0, 0.7, 1.0
+# cycle.
+OSC_HYSTERESIS, OSC_DECAY = 1.0 / 3.0, 0.7
 OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.07, 2.0
 # Under the reaction the detector asks whether the reaction's own loop cycles: a swing counts
 # only REACTION_HALF_RATIO times the alarmed cycle's half-period at most (a PI law that
@@ -284,9 +283,10 @@ def _alarm(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
     cs[CS_O_ALARM] = 1.0
     cs[CS_O_ALARMS] += 1.0
     reaction = int(cp[C_OSC_REACTION])
-    # the cycle's mean level: the last second's mean holds the level before a depth step
-    # that kicked the cycle off (once 35 % against a cycle about 20 %, and a 380 N overshoot)
-    mean = cs[CS_O_CSUM] / cs[CS_O_CTIME] if cs[CS_O_CTIME] > 0.0 else cs[CS_O_MEAN]
+    # the counted cycle's mean level (its time is its counted half-periods', never 0): the
+    # last second's mean held the level before a depth step that kicked the cycle off (once
+    # 35 % against a cycle about 20 %, and a 380 N overshoot)
+    mean = cs[CS_O_CSUM] / cs[CS_O_CTIME]
     cs[CS_O_HOLD] = clip(cp, 100.0 if reaction == PROGRAMMED_FEED else mean)
     cs[CS_O_WAIT] = 0.0
     cs[CS_O_HALF] = cs[CS_O_HALVES] / cs[CS_O_COUNT]
@@ -391,7 +391,6 @@ def _out_of_cut(cp: np.ndarray, cs: np.ndarray) -> None:
     cs[CS_O_SINCE] += cp[C_PERIOD]
     if cs[CS_O_SINCE] > OSC_HALF_MAX_S:
         cs[CS_O_DIR], cs[CS_O_COUNT] = 0.0, 0.0
-        cs[CS_O_MEAN] = cs[CS_HELD]
 
 
 @compiled
@@ -435,7 +434,6 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
         cs[CS_CARRY] = pymin(pymax(request + cs[CS_CARRY] - sent, -cp[C_GAP]), cp[C_GAP])
     law_sent(kind, cp, cs, quantise(levels, continuous, sent))
     cs[CS_HELD] = sent
-    cs[CS_O_MEAN] += (sent - cs[CS_O_MEAN]) * pymin(cp[C_PERIOD] / OSC_MEAN_S, 1.0)
     cs[CS_O_HSUM] += sent * cp[C_PERIOD]
     out[OUT_REACH] = _track_reach(cp, cs, request, out[OUT_ERR])
     out[OUT_PCT] = sent
