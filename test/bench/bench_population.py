@@ -316,7 +316,7 @@ def report(machines: list[Machine], results: dict[int, dict[str, Any]], oracle: 
                                           else 1e9))[:10]
     print('\nthe ten worst after commissioning:')
     for machine, result in worst:
-        steady, ripple = result['commissioned']
+        steady, ripple = result['commissioned'][:2]
         print(f'  {steady:8.2f} N steady, {ripple:7.1f} N ripple: {machine.describe()}')
 
 
