@@ -219,8 +219,10 @@ class ControllerBase(Settings):
         'detune', 'What the oscillation alarm does until the run ends or the tool changes: '
         "a slow PI law on the log of the feed whose crossover is a fifth of the oscillation's "
         'frequency, raised up to 1/3.5 of it where the force comes back slowly after a depth '
-        "step (detune), hold the alarmed cycle's mean override (hold_mean), ask for "
-        'the programmed feed (programmed_feed), or nothing but the alarm (none)',
+        'step, and a depth step down answered at once through the feed exponent '
+        "model_cutting_exponent (detune), hold the alarmed cycle's mean override "
+        '(hold_mean), ask for the programmed feed (programmed_feed), or nothing but the alarm '
+        '(none)',
         choices=OSCILLATION_REACTIONS, dynamic=True)
     # The drift monitor (.drift): the identified model above and its uncertainties, which
     # `turning-force identify` writes.
