@@ -16,8 +16,13 @@ from test_kernel import EXPERIMENTS, FIG8
 
 from turning_force.commands import population
 from turning_force.core.control import make_controller
-from turning_force.core.control.law import CS_O_CROSSOVER
-from turning_force.core.control.update import DETUNE_RATIO, FASTEST_RATIO, TAIL_RATE_PER_S
+from turning_force.core.control.law import CS_O_CROSSOVER, CS_O_HOLD
+from turning_force.core.control.update import (
+    DETUNE_P,
+    DETUNE_RATIO,
+    FASTEST_RATIO,
+    TAIL_RATE_PER_S,
+)
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import Experiment, load_experiment
 from turning_force.core.kernel.simulate import SimulationResult, simulate
@@ -186,13 +191,14 @@ def test_the_reaction_holds_across_an_interrupted_cut():
         assert np.ptp(force[window]) < 25.0   # the issue's ripple bound
 
 
-SLOWEST_LONG_JOBS = ((15, 1), (15, 12))   # 141 ms dead time; 106 ms and a 0.3 s servo
-
-
 @pytest.mark.parametrize(('seed', 'index'), [
     (7, 6), (7, 33),   # violent cycles whose troughs leave the cut: once never alarmed
     (7, 9), (2, 17),   # cycles that start at a depth step: once alarmed 2.5 and 2.2 s after it
     (15, 1), (15, 18),   # long jobs on slow loops: once left at 81 and 65 N after the reaction
+    # long jobs on the slowest loops (dead time 128-144 ms, servo 0.26-0.31 s): the PI law at
+    # its crossover's ceiling left them at 30 and 43 N, a x0.4 depth step still off 2 s after
+    # it (15 #1 and #12 here at 27 and 32 N); the reaction's answer to a step down, 7-19 N
+    (23, 27), (7, 50),
     # a 3.5 mm step's return of 705 N, then a cycle of 175 N swings: the third swing was held
     # to 0.3 of the kick's return, and the alarm came 2.46 s after the onset
     (15, 3),
@@ -212,18 +218,15 @@ SLOWEST_LONG_JOBS = ((15, 1), (15, 12))   # 141 ms dead time; 106 ms and a 0.3 s
     # x0.4 step; quickened after the first step's sluggish return
     (7, 24),
 ], ids=['trough out of the cut', 'interrupted, trough out of the cut', 'deep step',
-        'steps', 'long job, 141 ms', 'long job, 130 ms', 'kick larger than the cycle',
+        'steps', 'long job, 141 ms', 'long job, 130 ms', 'slowest, 144 ms',
+        'slowest, 128 ms', 'kick larger than the cycle',
         'drifting mean', 'long job, g 0.61', 'long job, g 0.78', 'long job, g 0.93',
         'kick with a smaller return', 'slow return under the reaction', 'long job, quickened'])
 def test_generated_machines_are_alarmed_in_time_and_calmed(seed, index):
     # Machines of the generated population (commands/population.py) of the classes the
     # detector once missed or the reaction once left cycling, judged as the issue does: the
     # oscillation on the true force, alarmed within 2 s of its onset, and from 3 s after the
-    # alarm (a few of the cycle's periods) under 25 N peak to peak. Two long jobs on the
-    # slowest loops are not there, and are held to where the reaction brings them: entered at
-    # the entry feed (the approach at 30 %), their cycle starts later, and at the detune
-    # crossover's ceiling (w_u / 3.5) a x0.4 depth step is still 26-32 N off 2 s after it
-    # (issue 16's note); they once stood at 81 and 39 N.
+    # alarm (a few of the cycle's periods) under 25 N peak to peak.
     machine = population.draw(index + 1, seed)[index]
     job = population.job_experiment(machine).with_sets([PRODUCT_QUANTISER])
     left = simulate(job.with_sets(['force_controller.oscillation_reaction=none']))
@@ -231,8 +234,7 @@ def test_generated_machines_are_alarmed_in_time_and_calmed(seed, index):
     assert onset is not None and alarm is not None and alarm <= onset + 2.0, (onset, alarm)
     reacting = simulate(job)
     assert first_alarm_s(reacting) == alarm   # the same loop up to the alarm
-    bound = 35.0 if (seed, index) in SLOWEST_LONG_JOBS else 25.0
-    assert ripple_after(reacting, job, alarm + 3.0) < bound
+    assert ripple_after(reacting, job, alarm + 3.0) < 25.0
 
 
 @pytest.mark.parametrize('sets', [
@@ -260,12 +262,12 @@ def test_no_alarm_while_the_loop_is_open():
     assert simulate(experiment).metrics['oscillation_alarms'] == 0.0
 
 
-def alarmed(period_s: float) -> tuple[object, FloatArray, float, int]:
+def alarmed(period_s: float, *sets: str) -> tuple[object, FloatArray, float, int]:
     """A controller with the product's reaction whose force error cycles at 200 N and
     ``period_s`` (its output not fed back: the cycle stays whatever it asks) until the alarm
     and 10 periods more: the controller, its state, the control period and the alarm's
     period index."""
-    experiment = load_experiment(FIG8).with_sets([PRODUCT_REACTION])
+    experiment = load_experiment(FIG8).with_sets([PRODUCT_REACTION, *sets])
     controller = make_controller(experiment.controller)
     dt, w_u = experiment.controller.control_period_s, 2.0 * np.pi / period_s
     alarm_k = None
@@ -320,6 +322,60 @@ def test_a_sluggish_return_quickens_the_reaction(rate_per_s, overshoot, quickene
     # the bound from the cycle's half-periods as above, 4 %
     assert state[CS_O_CROSSOVER] == pytest.approx(detuned * quickened, rel=0.04)
     assert state[CS_O_CROSSOVER] <= 2.0 * np.pi / period_s / FASTEST_RATIO * 1.04
+
+
+def calm_then_step(ratio: float, exponent: float) -> tuple[object, FloatArray, float, float]:
+    """An alarmed controller (:func:`alarmed`, a 0.6 s cycle) whose force then stays at the
+    reference for a second and jumps by ``ratio`` (a depth step) for one period, the law
+    assuming the feed exponent ``exponent``: the controller, its state, the control period
+    and the reaction's level before the step."""
+    controller, state, dt, _ = alarmed(0.6, f'force_controller.model_cutting_exponent={exponent}')
+    for _ in range(round(1.0 / dt)):
+        out = controller.update(500.0, 0.0)
+        controller.applied(out.override_pct, True, int(Reason.NORMAL))
+    before = state[CS_O_HOLD]
+    out = controller.update(500.0 * ratio, 500.0 * ratio * np.log(ratio) / dt)
+    controller.applied(out.override_pct, True, int(Reason.NORMAL))
+    return controller, state, dt, before
+
+
+@pytest.mark.parametrize('ratio', [0.5, 0.75], ids=['x0.5', 'x0.75'])
+def test_a_depth_step_down_under_the_reaction_moves_the_feed_at_once(ratio):
+    # After the alarm the force is calm at the reference for a second, then a depth step
+    # multiplies it by ``ratio`` (the controller's output not fed back: the feed has not
+    # reached the force yet). F = K a f^g: the feed that brings the force back is
+    # f ratio^(-1/g), g the feed exponent the laws assume (here 0.8), and the reaction goes
+    # there in the period it sees the step, not at its crossover's pace (the PI law alone
+    # moved 0.55 of the way in the log, and the rest at a few % a period).
+    exponent = 0.8
+    controller, state, dt, before = calm_then_step(ratio, exponent)
+    # nothing of the feed's move has reached the force in the reaction's model yet, and the
+    # calm force's mean (over 0.1 s, from where the cycle left it a second before: e^-10 of
+    # that) is the reference to 1e-5
+    expected = before * ratio ** (-1.0 / exponent)
+    assert 1.3 * expected < 150.0   # inside the table with what follows (below)
+    assert state[CS_O_HOLD] == pytest.approx(expected, rel=1e-4)
+    # The force does not follow here: the reaction's model of the feed's way to the force,
+    # two lags of T = half the cycle's half-period (0.15 s), says the move is arriving, and
+    # the level answers what does not arrive as the model's error (internal model control:
+    # it integrates). The log level's move x over the first one m0 is then x = m0 + L(x), L
+    # the two lags: x / m0 = 3/4 + t / (2 T) + exp(-2 t / T) / 4, 1.284 at t = T. The control
+    # period is 0.067 T, and the moves start a period late: 3 %.
+    lag_s = 0.15
+    for _ in range(round(lag_s / dt)):
+        out = controller.update(500.0 * ratio, 0.0)
+        controller.applied(out.override_pct, True, int(Reason.NORMAL))
+    moved, kept = np.log(expected / before), np.log(state[CS_O_HOLD] / before)
+    assert kept / moved == pytest.approx(0.75 + 0.5 + np.exp(-2.0) / 4.0, rel=0.03)
+
+
+def test_a_depth_step_up_is_left_to_the_reaction_s_pi_law():
+    # A step up (x1.5) is the PI law's: its proportional part takes DETUNE_P of the jump of
+    # ln F at once, its integral part a period of the crossover on it.
+    _, state, dt, before = calm_then_step(1.5, 0.8)
+    share = np.log(1.5)
+    step = (state[CS_O_CROSSOVER] * dt + DETUNE_P) * share
+    assert state[CS_O_HOLD] == pytest.approx(before * np.exp(-step), rel=1e-4)
 
 
 @pytest.mark.parametrize('machine', ['second_order_slow', 'kienzle_0p6_noisy_dead_time'])

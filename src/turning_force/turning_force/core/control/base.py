@@ -20,6 +20,7 @@ from turning_force.core.control.law import (
     C_CONT,
     C_DRIFT,
     C_EF,
+    C_EXPONENT,
     C_FEED_RATE,
     C_FEED_REV,
     C_GAP,
@@ -222,6 +223,7 @@ def _params(c: ControllerSettings, table: OverrideTable) -> tuple[FloatArray, in
     p[C_CONT] = table.continuous
     p[C_FEED_REV] = c.programmed_feed_mm_rev
     p[C_RPM_SET] = p[C_RPM] = c.spindle_speed_rpm
+    p[C_EXPONENT] = c.model_cutting_exponent
     p[C_DRIFT:C_LAW] = drift.drift_fill(c)
     p[C_LAW:] = own
     return p, size

@@ -68,7 +68,10 @@ C_OSC_SWING, C_OSC_COUNT, C_OSC_REACTION = range(10, 13)   # the oscillation ala
 # The spindle: the programmed feed [mm/rev], the spindle_speed_rpm parameter, the speed in use
 # (the live one, machine/spindle_speed, where it is given: :func:`spindle_speed`).
 C_FEED_REV, C_RPM_SET, C_RPM = range(13, 16)
-C_DRIFT = 16   # the drift monitor's parameters (.drift), drift.PARAMS of them
+# The feed exponent g the laws assume (model_cutting_exponent): the oscillation reaction's
+# feed-forward of a depth step (.update._feed_forward).
+C_EXPONENT = 16
+C_DRIFT = 17   # the drift monitor's parameters (.drift), drift.PARAMS of them
 C_LAW = C_DRIFT + drift.PARAMS
 # State every law has (cs): the request held, the quantiser's carry, the time pinned at an end
 # of the table and which end, the resets; whether the tool is in the cut (the last override
@@ -94,7 +97,13 @@ CS_HELD, CS_CARRY, CS_PINNED, CS_RESETS, CS_SIDE, CS_ENGAGED = range(6)
  CS_O_LOG_FORCE, CS_O_SWING_BEFORE, CS_O_PAIRED, CS_O_OPEN, CS_O_HALF, CS_O_TAIL,
  CS_O_TAIL_SIGN, CS_O_HSUM, CS_O_CSUM, CS_O_CTIME) = range(6, 29)
 CS_PIN_ERROR = 29
-CS_DRIFT = 30   # the drift monitor's state (.drift), drift.STATE values
+# The detune reaction's answer to a depth step (.update._feed_forward): its phase (0
+# watching, 1 answering a step), the time in the phase (watching: calm so far), the level and
+# the log force share the step started from, and the two lags that predict the force's
+# answer to the level's moves since.
+CS_O_FF_PHASE, CS_O_FF_TIME, CS_O_FF_LEVEL, CS_O_FF_SHARE, CS_O_FF_NEAR, CS_O_FF_FAR = \
+    range(30, 36)
+CS_DRIFT = 36   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
@@ -210,8 +219,10 @@ class ControllerBase(Settings):
         'detune', 'What the oscillation alarm does until the run ends or the tool changes: '
         "a slow PI law on the log of the feed whose crossover is a fifth of the oscillation's "
         'frequency, raised up to 1/3.5 of it where the force comes back slowly after a depth '
-        "step (detune), hold the alarmed cycle's mean override (hold_mean), ask for "
-        'the programmed feed (programmed_feed), or nothing but the alarm (none)',
+        'step, and a depth step down answered at once through the feed exponent '
+        "model_cutting_exponent (detune), hold the alarmed cycle's mean override "
+        '(hold_mean), ask for the programmed feed (programmed_feed), or nothing but the alarm '
+        '(none)',
         choices=OSCILLATION_REACTIONS, dynamic=True)
     # The drift monitor (.drift): the identified model above and its uncertainties, which
     # `turning-force identify` writes.
