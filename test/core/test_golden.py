@@ -1,8 +1,9 @@
 """Every experiment file against its golden trace (test/golden/, made by make_golden.py on a
 CPU without AVX-512 dispatch): the true force, the estimate, the request and the applied override
 of every block, and the metrics. The tolerances and why are in make_golden.py. The same runs
-interpreted (numba's own switch, ``NUMBA_DISABLE_JIT=1``) are held to the same traces: the
-compiled and the readable code are one."""
+interpreted (numba's own switch, ``NUMBA_DISABLE_JIT=1``) and through numba's dispatchers where
+the kernel compiled ahead of time is loaded (``TURNING_FORCE_AOT=0``) are held to the same
+traces: the compiled and the readable code are one."""
 
 import json
 import os
@@ -43,14 +44,21 @@ def test_a_changed_behaviour_is_caught(tmp_path):
     assert any('metric steady_mean_abs_error_n' in p for p in found)
 
 
-def test_the_interpreted_runs_are_the_golden_traces_too():
-    # Every file once more with numba off: the functions run as the Python they are written in.
+@pytest.mark.parametrize('how', [('NUMBA_DISABLE_JIT', '1', 'interpreted'),
+                                 ('TURNING_FORCE_AOT', '0', 'just in time')],
+                         ids=['interpreted', 'just-in-time'])
+def test_the_other_ways_to_run_are_the_golden_traces_too(how):
+    # Every file once more with numba off (the functions run as the Python they are written
+    # in), and once through numba's dispatchers (where this process may run the kernel
+    # compiled ahead of time, core/aot.py).
+    variable, value, mode = how
     code = ('import json; from golden.make_golden import EXPERIMENTS, golden_run, problems; '
+            'from turning_force.core import kernel; '
             'print(json.dumps([p for f in sorted(EXPERIMENTS.glob("*.yaml")) '
-            'for p in problems(f.stem, *golden_run(f))]))')
-    env = {**os.environ, 'NUMBA_DISABLE_JIT': '1',
+            'for p in problems(f.stem, *golden_run(f))] + [kernel.mode()]))')
+    env = {**os.environ, variable: value,
            'PYTHONPATH': os.pathsep.join([str(HERE.parent), os.environ.get('PYTHONPATH', '')])}
     run = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True,
                          timeout=600, check=False)
     assert run.returncode == 0, run.stderr[-2000:]
-    assert json.loads(run.stdout) == []
+    assert json.loads(run.stdout) == [mode]

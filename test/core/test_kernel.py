@@ -5,8 +5,10 @@ in test_batch.py)."""
 
 from __future__ import annotations
 
+import io
 import os
 import re
+import subprocess
 import sys
 from pathlib import Path
 
@@ -77,37 +79,68 @@ def test_a_loaded_kernel_leaves_the_cache_warm_outside_the_package(monkeypatch, 
 
 @pytest.mark.slow
 def test_a_first_compilation_says_what_it_does(tmp_path):
-    # A fresh cache: the load compiles, says so on stderr with where and how long, and leaves
-    # the cache warm for the next process, which says nothing.
-    import subprocess
-    import sys
-
+    # A fresh cache: the load compiles numba's cache, then the module compiled ahead of time,
+    # says so on stderr with where and how long, and leaves both for the next process, which
+    # says nothing and loads the module without numba.
     env = {**os.environ, 'NUMBA_CACHE_DIR': str(tmp_path)}
-    code = 'from turning_force.core import kernel; kernel.load(); print(kernel.cache_is_warm())'
+    code = ('import sys; from turning_force.core import kernel; kernel.load(); '
+            'print(kernel.cache_is_warm(), kernel.mode(), "numba" in sys.modules)')
     first = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True,
                            text=True, timeout=600, check=True)
-    assert first.stdout.strip() == 'True'
+    assert first.stdout.strip() == 'True just in time True'
     assert re.fullmatch(r'turning_force: compiling the kernel into \S+ \(once per install and '
-                        r'version: 15 to 60 s\)\nturning_force: kernel compiled in \d+ s\n',
-                        first.stderr), first.stderr
+                        r'version: 15 to 60 s\)\nturning_force: kernel compiled in \d+ s\n'
+                        r'turning_force: compiling the kernel ahead of time into \S+\.so \(once '
+                        r'per install and version: 30 to 90 s\)\nturning_force: kernel compiled '
+                        r'ahead of time in \d+ s\n', first.stderr), first.stderr
     second = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True,
                             text=True, timeout=600, check=True)
-    assert (second.stdout.strip(), second.stderr) == ('True', '')
+    assert (second.stdout.strip(), second.stderr) == ('True ahead of time False', '')
+
+
+def test_the_kernel_compiled_ahead_of_time_runs_without_numba():
+    # make setup (kernel.prepare) compiles it for this CPU (NUMBA_CPU_NAME where given); a run
+    # then imports no numba at all, and its numbers are those of numba's dispatchers, bit for
+    # bit: the module is compiled from the same functions (their optimised code, linked) for
+    # the same CPU, and no floating-point rewriting (fast-math, contraction) is allowed in
+    # either.
+    subprocess.run([sys.executable, '-c', 'from turning_force.core import kernel; '
+                    'kernel.prepare()'], check=True, timeout=600)
+    code = ('import sys, numpy as np; from turning_force.core import kernel; '
+            'from turning_force.core.experiment import load_experiment; '
+            'from turning_force.core.kernel.simulate import simulate; '
+            f'r = simulate(load_experiment({str(FIG8)!r})); '
+            'np.save(sys.stdout.buffer, np.stack(list(r.trace.values()))); '
+            'print(kernel.mode(), "numba" in sys.modules, file=sys.stderr)')
+    runs = {}
+    for ahead in ('1', '0'):
+        run = subprocess.run([sys.executable, '-c', code], capture_output=True, timeout=600,
+                             check=True, env={**os.environ, 'TURNING_FORCE_AOT': ahead})
+        runs[ahead] = np.load(io.BytesIO(run.stdout))
+        assert run.stderr.decode().strip() == {'1': 'ahead of time False',
+                                                '0': 'just in time True'}[ahead]
+    np.testing.assert_array_equal(runs['1'], runs['0'])
 
 
 def test_an_entry_point_takes_its_signature_and_compiles_nothing_else():
-    # Entry points are compiled for their signature at their first call and then closed: a
-    # call with other types (a float32 array) is a TypeError, not seconds of compiling.
+    # Entry points are compiled for their signature and take nothing else: a call with other
+    # types (a float32 array, a strided one) is a TypeError, not seconds of compiling
+    # (numba's dispatcher is closed) nor memory read as another type (the module compiled
+    # ahead of time reads what the signature says).
     from turning_force.core.control import ControllerSettings, law, make_controller, update
 
     controller = make_controller(ControllerSettings())
     cp, cs, levels = controller.arrays
     out = np.zeros(law.OUT_SIZE)   # numba checks no bounds: a shorter one is written past
     update.control_step(cp, cs, levels, 500.0, 0.0, out)
-    assert len(update.control_step.signatures) == 1
+    assert np.isfinite(out[law.OUT_PCT])
+    for bad in (cp.astype(np.float32), np.repeat(cp, 2)[::2]):
+        with pytest.raises(TypeError):
+            update.control_step(bad, cs, levels, 500.0, 0.0, out)
     with pytest.raises(TypeError):
-        update.control_step(cp.astype(np.float32), cs, levels, 500.0, 0.0, out)
-    assert len(update.control_step.signatures) == 1
+        update.control_step(cp, cs, levels, 500.0, 0.0)
+    if kernel.mode() == 'just in time':
+        assert len(update.control_step.signatures) == 1
 
 
 def test_the_compiled_code_calls_no_blas():

@@ -150,7 +150,7 @@ def _check_bridge_files(experiment: Experiment, core: bool) -> None:
     """The files the bridge reads, refused before anything runs, as the bridge refuses them:
     the teach-in file; and for ``run --core`` the machine file the graph would load."""
     bridge = experiment.bridge
-    if core:
+    if core and (bridge.machine_file or bridge.backend == 'modbus_tcp'):   # (pymodbus: 0.05 s)
         from turning_force.io.pmc_server import simulate_pmc
 
         simulate_pmc(bridge.machine_file, bridge.backend, bridge.override_table)

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import importlib.metadata
 import importlib.util
 import os
+import sys
 from pathlib import Path
 
 __all__ = ['LAW_GROUP', 'STAMP', 'cache_dir', 'cache_is_warm', 'installed_laws',
@@ -31,6 +31,10 @@ CORE = Path(__file__).resolve().parent
 def installed_laws() -> tuple[tuple[str, str, str], ...]:
     """The laws other packages install: (name, module, distribution) of each
     ``turning_force.laws`` entry point, by name."""
+    if not _may_declare(LAW_GROUP):
+        return ()
+    import importlib.metadata
+
     found = []
     for point in importlib.metadata.entry_points(group=LAW_GROUP):
         dist = point.dist.name if point.dist is not None else '?'
@@ -38,11 +42,36 @@ def installed_laws() -> tuple[tuple[str, str, str], ...]:
     return tuple(sorted(found))
 
 
+def _may_declare(group: str) -> bool:
+    """Whether a distribution on ``sys.path`` may declare entry points of ``group``: one's
+    entry_points.txt names it, or a path entry is no folder to look in (a zip). A look before
+    importlib.metadata, whose import and scan cost 30-60 ms at every start where none does."""
+    needle = group.encode()
+    for entry in sys.path:
+        try:
+            with os.scandir(entry or '.') as found:
+                folders = [item.path for item in found
+                           if item.name.endswith(('.dist-info', '.egg-info'))]
+        except NotADirectoryError:
+            return True
+        except OSError:   # not there
+            continue
+        for folder in folders:
+            try:
+                if needle in Path(folder, 'entry_points.txt').read_bytes():
+                    return True
+            except OSError:
+                continue
+    return False
+
+
 @functools.cache
 def source_hash() -> str:
-    """The SHA-256 of numba's version, where ``turning_force.core`` is and every source of it,
-    and the module of every installed law."""
-    digest = hashlib.sha256(importlib.metadata.version('numba').encode())
+    """The SHA-256 of numba's version (its ``_version.py``), where ``turning_force.core`` is
+    and every source of it, and the module of every installed law."""
+    numba = importlib.util.find_spec('numba')
+    version = Path(numba.origin).with_name('_version.py') if numba and numba.origin else None
+    digest = hashlib.sha256(version.read_bytes() if version and version.is_file() else b'')
     # numba files a function's machine code under its source file's path: two checkouts of the
     # same sources keep apart, or one's stamp would call the other's cache warm.
     digest.update(str(CORE).encode())

@@ -9,9 +9,11 @@ with their signatures. Under ``NUMBA_DISABLE_JIT=1`` they run as the Python they
 
 Decorating imports no numba: a module of compiled code costs what its Python costs to import,
 so that reading settings (which live beside the code that reads them) stays cheap.
-:func:`activate` (called by :func:`turning_force.core.kernel.load`) imports numba and makes every
-function decorated so far a numba dispatcher, in its module and in every module that imported
-it by name; what is decorated after it is compiled as it is defined. An entry point is compiled
+:func:`activate` (called by :func:`turning_force.core.kernel.load`) makes every entry point
+the function of the module compiled ahead of time (:mod:`.aot`: numba is not imported) where
+the cache folder has one, else imports numba and makes every function decorated so far a numba
+dispatcher, in its module and in every module that imported it by name; what is decorated after
+it is compiled as it is defined (or where Python calls it). An entry point is compiled
 for its signature (or loaded from the cache) at its first call, so that a run loads the machine
 code of the entry points it calls and no other; with a warm cache the other functions'
 dispatchers wait until Python calls one or a compilation needs them. numba's machine code goes to
@@ -21,25 +23,32 @@ dispatchers wait until Python calls one or a compilation needs them. numba's mac
 from __future__ import annotations
 
 import math
+import os
 import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any, TypeVar, cast
 
 import numpy as np
 
+from turning_force.core import aot
 from turning_force.core.codecache import cache_dir, cache_is_warm, installed_laws
 
-__all__ = ['Arr', 'activate', 'active', 'compiled', 'delayed', 'entry', 'isclose', 'npsign',
-           'pairwise_sum', 'pymax', 'pymin', 'pymod', 'quantise']
+__all__ = ['AHEAD', 'INTERPRETED', 'JUST_IN_TIME', 'Arr', 'activate', 'active', 'build_ahead',
+           'compiled', 'delayed', 'entry', 'isclose', 'mode', 'npsign', 'pairwise_sum', 'pymax',
+           'pymin', 'pymod', 'quantise']
 
 _F = TypeVar('_F', bound=Callable[..., Any])
 Arr = np.ndarray   # float64, C-contiguous: what the entry points' signatures say
 
 # What is decorated before activate(): each function with its entry signature ('' if none).
 _pending: list[tuple[Callable[..., Any], str]] = []
+_entries: list[tuple[Callable[..., Any], str]] = []   # every entry point, in their order
 _active = False
+AHEAD, JUST_IN_TIME, INTERPRETED = 'ahead of time', 'just in time', 'interpreted'
+_mode = ''
 _lock = threading.RLock()
 _OPTIONS: dict[str, Any] = {'cache': True, 'error_model': 'numpy', 'nogil': True}
 
@@ -49,6 +58,8 @@ def compiled(function: _F) -> _F:
     division by zero gives IEEE infinities), the GIL released. Compiled at its first call."""
     with _lock:
         if _active:
+            if _mode == AHEAD:   # numba's, where Python calls it (:class:`_Deferred`)
+                return cast(_F, _Deferred(function))
             _materialize()
             return cast(_F, _jit(function, ''))
         _pending.append((function, ''))
@@ -57,11 +68,14 @@ def compiled(function: _F) -> _F:
 
 def entry(signature: str) -> Callable[[_F], _F]:
     """An entry point from Python: compiled for ``signature`` (or loaded from the cache) at its
-    first call and closed to other types, so that no call from Python compiles on its way."""
+    first call and closed to other types, so that no call from Python compiles on its way.
+    Compiled ahead of time as well (:mod:`.aot`): its own body only passes its arguments on."""
     def decorate(function: _F) -> _F:
         with _lock:
+            _entries.append((function, signature))
             if _active:
-                _materialize()
+                if _mode != AHEAD:
+                    _materialize()
                 return cast(_F, _jit(function, signature))
             _pending.append((function, signature))
             return function
@@ -73,31 +87,50 @@ def active() -> bool:
     return _active
 
 
+def mode() -> str:
+    """How the compiled functions run in this process: :data:`AHEAD` (the module compiled
+    ahead of time, :mod:`.aot`), :data:`JUST_IN_TIME` (numba's dispatchers),
+    :data:`INTERPRETED` (``NUMBA_DISABLE_JIT=1``), '' before :func:`activate`."""
+    return _mode
+
+
 def activate() -> float:
     """Compile every function decorated so far (see the module's text); the seconds it took.
 
-    numba checks a cached function's own file only, not the files of what it calls: the cache
-    folder is named for every source's hash (:mod:`.codecache`)."""
-    global _active
+    Where the module compiled ahead of time for today's sources is in the cache folder
+    (:mod:`.aot`), the entry points are its functions and numba is not imported: the other
+    compiled functions become numba's only if Python calls one. Else numba's dispatchers,
+    loaded from its cache (numba checks a cached function's own file only, not the files of
+    what it calls: the cache folder is named for every source's hash, :mod:`.codecache`)."""
+    global _active, _mode
     with _lock:
         if _active:
             return 0.0
         start = time.perf_counter()
-        import numba
-        numba.config.CACHE_DIR = str(cache_dir())   # type: ignore[attr-defined]
-        warm = cache_is_warm()
-        if not warm:
-            print(f'turning_force: compiling the kernel into {cache_dir()} (once per install '
-                  'and version: 15 to 60 s)', file=sys.stderr, flush=True)
-        elif not installed_laws():
-            _target_without_blas()
-        # With a warm cache an entry point's machine code is read whole: nothing else is
-        # compiled, and the other functions' dispatchers (a millisecond each) wait until Python
-        # calls one or a compilation needs them (_materialize).
-        defer = warm and not numba.config.DISABLE_JIT   # type: ignore[attr-defined]
-        made = {id(function): (function, _Deferred(function) if defer and not signature
-                               else _jit(function, signature))
-                for function, signature in _pending}
+        ahead = None if _jit_disabled() else aot.load()
+        warm = True
+        if ahead is not None:
+            made = {id(function): (function, _Deferred(function) if not signature
+                                   else aot.Checked(getattr(ahead, function.__name__),
+                                                    function, signature)
+                                   if hasattr(ahead, function.__name__)
+                                   else _jit(function, signature))
+                    for function, signature in _pending}
+            _mode = AHEAD
+        else:
+            numba = _numba()
+            warm = cache_is_warm()
+            if not warm:
+                print(f'turning_force: compiling the kernel into {cache_dir()} (once per '
+                      'install and version: 15 to 60 s)', file=sys.stderr, flush=True)
+            # With a warm cache an entry point's machine code is read whole: nothing else is
+            # compiled, and the other functions' dispatchers (a millisecond each) wait until
+            # Python calls one or a compilation needs them (_materialize).
+            disabled = numba.config.DISABLE_JIT
+            made = {id(function): (function, _Deferred(function) if warm and not disabled
+                                   and not signature else _jit(function, signature))
+                    for function, signature in _pending}
+            _mode = INTERPRETED if disabled else JUST_IN_TIME
         _rebind(made, {function.__module__ for function, _ in _pending})
         if not warm:   # compile them all now, and say how long it took
             for _, compiled_function in made.values():
@@ -106,6 +139,21 @@ def activate() -> float:
         _pending.clear()
         _active = True
         return time.perf_counter() - start
+
+
+def build_ahead() -> Path | None:
+    """Compile every entry point ahead of time (:func:`.aot.build`) from numba's dispatchers
+    (this process's kernel loaded just in time); None where another process is at it."""
+    with _lock:
+        if _mode != JUST_IN_TIME:
+            raise RuntimeError(f'the kernel is loaded {_mode or "nowhere"}, not just in time')
+        _materialize()
+        return aot.build(list(_entries))
+
+
+def _jit_disabled() -> bool:
+    """numba's own switch (``NUMBA_DISABLE_JIT``), read without importing numba."""
+    return os.environ.get('NUMBA_DISABLE_JIT', '').strip() not in ('', '0')
 
 
 def _rebind(made: Mapping[int, tuple[Any, Any]], owners: set[str]) -> None:
@@ -130,7 +178,7 @@ def _materialize() -> bool:
     with _lock:
         if not _deferred:
             return False
-        made = {id(d): (d, _jit(d.py_func, '')) for d in _deferred}
+        made = {id(d): (d, _dispatcher(d.py_func)) for d in _deferred}
         _rebind(made, {d.py_func.__module__ for d in _deferred})
         for d in _deferred:
             d.dispatcher = made[id(d)][1]
@@ -154,13 +202,15 @@ class _Deferred:
 
 
 class _Entry:
-    """An entry point: its dispatcher, compiled for its signature at the first call and then
-    closed to any other (a call with other types is an error, not a compilation on the way)."""
+    """An entry point: numba's dispatcher, compiled for its signature at the first call and
+    then closed to any other (a call with other types is an error, not a compilation on the
+    way)."""
 
-    def __init__(self, dispatcher: Any, signature: str) -> None:
-        self._dispatcher, self._signature = dispatcher, signature
+    def __init__(self, function: Callable[..., Any], signature: str) -> None:
+        self.py_func, self._signature = function, signature
+        self._dispatcher: Any = None
         self._call: Callable[..., Any] = self._first
-        self.__doc__, self.__name__ = dispatcher.__doc__, dispatcher.__name__
+        self.__doc__, self.__name__ = function.__doc__, function.__name__
 
     def __call__(self, *args: Any) -> Any:
         return self._call(*args)
@@ -169,14 +219,15 @@ class _Entry:
         """Compile it for its signature now, or load it from the cache (where the cache
         misses, numba compiles it, and the functions it calls need their dispatchers)."""
         with _lock:
-            if self._call is not self._dispatcher:
+            if self._dispatcher is None or self._call is not self._dispatcher:
+                self._dispatcher = _dispatcher(self.py_func)
                 try:
                     self._dispatcher.compile(self._signature)
                 except Exception:
                     if not _materialize():
                         raise
                     # numba keeps a failed compilation's error: a fresh dispatcher tries again.
-                    self._dispatcher = _jit(self._dispatcher.py_func, '')
+                    self._dispatcher = _dispatcher(self.py_func)
                     self._dispatcher.compile(self._signature)
                 self._dispatcher.disable_compile()
                 self._call = self._dispatcher
@@ -185,8 +236,29 @@ class _Entry:
         self.load()
         return self._call(*args)
 
-    def __getattr__(self, name: str) -> Any:   # signatures, py_func, ...
+    def __getattr__(self, name: str) -> Any:   # signatures, ...
+        if name.startswith('_'):
+            raise AttributeError(name)
+        if self._dispatcher is None:
+            self.load()
         return getattr(self._dispatcher, name)
+
+
+_numba_ready = False
+
+
+def _numba() -> Any:
+    """numba, imported, its cache in :func:`cache_dir` (and, with a warm cache and only our
+    laws, its CPU target set up without its check for a BLAS)."""
+    global _numba_ready
+    import numba
+    with _lock:
+        if not _numba_ready:
+            numba.config.CACHE_DIR = str(cache_dir())   # type: ignore[attr-defined]
+            if cache_is_warm() and not installed_laws():
+                _target_without_blas()
+            _numba_ready = True
+    return numba
 
 
 def _target_without_blas() -> None:
@@ -210,12 +282,17 @@ def _target_without_blas() -> None:
         del sys.modules[hidden]
 
 
+def _dispatcher(function: _F) -> Any:
+    """numba's dispatcher of ``function`` (the function itself under ``NUMBA_DISABLE_JIT``)."""
+    return _numba().njit(**_OPTIONS)(function)
+
+
 def _jit(function: _F, signature: str) -> Any:
-    """numba's dispatcher of ``function`` (the function itself under ``NUMBA_DISABLE_JIT``),
-    an entry point's behind :class:`_Entry`."""
-    from numba import njit
-    made = njit(**_OPTIONS)(function)
-    return _Entry(made, signature) if signature and hasattr(made, 'compile') else made
+    """numba's dispatcher of ``function``, an entry point's behind :class:`_Entry` (made at
+    its first call)."""
+    if signature and not _jit_disabled():
+        return _Entry(function, signature)
+    return _dispatcher(function)
 
 
 # --- Python's and numpy's scalar rules, as the golden traces have them ----------------------
