@@ -1,8 +1,9 @@
 """Commissioning on a population of simulated machines (issue 15): the fraction that ends in
 band after the user's flow (record commissioning.yaml, identify with the job's depths and verify
-in closed loop on the job, cut the job with what identify chose), beside the uncommissioned
-defaults, the sliding mode and predictive laws with the identified model, and both with the
-machine's true model (what a perfect identification would give each law).
+in closed loop on the job, cut the job with what identify wrote: the chosen settings and the
+drift monitor's), beside the uncommissioned defaults, the sliding mode and predictive laws with
+the identified model, and both with the machine's true model (what a perfect identification
+would give each law).
 
 Band: steady error <= 5 N and ripple <= 25 N peak to peak (issue 15). Per machine, the steady
 error of each column; then per column the fraction in band and the median steady error; then the
@@ -122,7 +123,7 @@ def evaluate(machine: Machine, oracle: bool = False,
     truth = true_model(machine)
     runs = {
         'defaults': list(PRODUCT),
-        'commissioned': None if done is None else list(done.chosen.sets),
+        'commissioned': None if done is None else done.written,
         'smc identified': None if done is None else [*done.identified, *SMC],
         'mpc identified': None if done is None else [*done.identified, *MPC],
         'smc true model': [*truth, *SMC],

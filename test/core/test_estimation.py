@@ -340,3 +340,36 @@ def test_every_problem_is_named_and_the_last_good_force_kept():
         assert estimate.status == invalid
         assert estimate.detail == 'force filter overflowed (|i| up to 50 A)'
         assert math.isfinite(estimate.force_n)
+
+
+@pytest.mark.parametrize('force_filter', FILTERS)
+def test_a_friction_correction_in_the_cut_steps_the_estimate_by_the_friction_read(force_filter):
+    # A noise-free 2 mm cut on a lathe with 30 % more friction than the estimator's
+    # calibration: the estimate reads the true force plus 30 % of the friction at this feed.
+    # The drift monitor reads that offset in the cut (drift.drift_correction) and the
+    # estimator takes it off: the scale becomes 1.3 (offset / calibrated friction at the feed,
+    # the estimator's own Eq. 25) and the next block's estimate is the true force, with no
+    # transient of the filter's own (its state moved as if it had seen it all along: the
+    # filters are linear). Noise-free, both to a hundredth of a newton.
+    defaults = PlantSettings()
+    plant = PlantSettings(current_noise_a=0.0, depth_times_s=(0.0,), depth_mm=(2.0,),
+                          friction_at_min_feed_a=1.3 * defaults.friction_at_min_feed_a,
+                          friction_at_max_feed_a=1.3 * defaults.friction_at_max_feed_a)
+    settings = EstimatorSettings(force_filter=force_filter)
+    estimator = ForceEstimator(settings)
+    blocks = blocks_of(plant, [100.0] * 151)
+    for block in blocks[:150]:
+        estimate = estimator.update(block.currents)
+    friction_n = estimate.friction_current_a / settings.current_map.per_force_a_n
+    offset_n = estimate.force_n - block.force_n[-1]
+    assert offset_n == pytest.approx(0.3 * friction_n, rel=1e-3)
+    line = estimator.correct(offset_n)
+    assert estimator.friction_scale == pytest.approx(1.3, rel=1e-3)
+    assert line.startswith('friction corrected in the cut by the drift monitor: 1.300 x')
+    after = estimator.update(blocks[150].currents)
+    assert after.force_n == pytest.approx(blocks[150].force_n[-1], abs=0.01)
+    assert after.force_rate_n_s == pytest.approx(0.0, abs=0.5)
+    # bounded as the re-zero in air is (rezero_max_change 0.5): a reading of 3 times the
+    # friction takes the scale to 1.5, and says so
+    assert '1.500 x calibrated' in estimator.correct(3.0 * friction_n)
+    assert estimator.friction_scale == pytest.approx(1.5)

@@ -18,10 +18,12 @@ from turning_force_msgs.msg import (
     ServoCurrents,
 )
 
+from turning_force.core.control import drift
+from turning_force.core.control.law import CS_DRIFT
 from turning_force.core.errors import ConfigError
 from turning_force.core.estimation.settings import EstimatorSettings
 from turning_force.nodes.force_controller import REFERENCE_QOS, ForceControllerNode
-from turning_force.nodes.force_estimator import ForceEstimatorNode
+from turning_force.nodes.force_estimator import FRICTION_CORRECTION_TOPIC, ForceEstimatorNode
 from turning_force.nodes.lathe_sim import LatheSimNode
 from turning_force.nodes.pmc_bridge import PmcBridgeNode
 from turning_force.nodes.session_recorder import SessionRecorderNode
@@ -143,6 +145,34 @@ def test_estimator_marks_bad_blocks_invalid_and_stays_finite(estimator_rig, spin
     assert 'not after' in estimates[-1].detail
 
 
+def test_estimator_takes_a_friction_correction_off_from_the_next_block(context, executor,
+                                                                       spin_until):
+    # The controller's drift monitor read 20 N of friction drift in the cut
+    # (force/friction_correction): the estimator's friction scale takes it at the blocks'
+    # feed and the next estimate is 20 N lower (the blocks are constant: the filter is at
+    # rest, its state moves with the scale); it says so on /diagnostics.
+    node = ForceEstimatorNode(context=context)
+    executor.add_node(node)
+    probe = Probe(context, executor)
+    estimates = probe.listen(ForceEstimate, 'force/estimate')
+    feed = BlockFeeder(probe)
+    def answered() -> bool:   # the estimate of the last block sent is in
+        return bool(estimates) and (estimates[-1].header.stamp.nanosec
+                                    == feed.sent_ns[-1] + 9_000_000)
+
+    assert spin_until(lambda: feed() or len(estimates) >= 3)
+    assert spin_until(answered)
+    before = estimates[-1].force_n
+    corrections = probe.publisher(Float64, FRICTION_CORRECTION_TOPIC)
+    assert spin_until(lambda: corrections.get_subscription_count() > 0)
+    corrections.publish(Float64(data=20.0))   # once: each one heard is taken off
+    assert spin_until(lambda: node.diagnostics.received_count(FRICTION_CORRECTION_TOPIC) > 0)
+    feed()
+    assert spin_until(answered)
+    assert estimates[-1].force_n == pytest.approx(before - 20.0, abs=1e-6)
+    assert node._estimator.friction_scale > 1.0
+
+
 # --- force_controller ------------------------------------------------------------------------
 
 def estimate(force_n: float, sec: int = 1, status: int = ForceEstimate.STATUS_OK):
@@ -167,6 +197,25 @@ def test_controller_answers_each_estimate_with_its_stamp(controller_rig, spin_un
     assert command.header.stamp.sec == 7 and command.controller == 'smc'
     assert command.tracking_error_n == -50.0 and command.reference_force_n == 500.0
     assert 0.0 <= command.override_pct <= 150.0
+
+
+def test_controller_passes_its_monitors_friction_reading_to_the_estimator(
+        context, executor, spin_until):
+    # The drift monitor asks the estimator to take 12 N of friction off (drift_correction's
+    # request, set here where a friction drift read in the cut would set it): the next
+    # command goes with it on force/friction_correction, once.
+    node = ForceControllerNode(context=context)
+    executor.add_node(node)
+    probe = Probe(context, executor)
+    commands = probe.listen(FeedCommand, 'control/feed_command')
+    corrections = probe.listen(Float64, FRICTION_CORRECTION_TOPIC)
+    estimates = probe.publisher(ForceEstimate, 'force/estimate')
+    assert until_heard(spin_until, estimates, estimate(450.0), commands)
+    node._controller.arrays[1][CS_DRIFT + drift.DS_CORRECT] = 12.0
+    assert until_heard(spin_until, estimates, estimate(450.0, sec=2), corrections)
+    count = len(commands)
+    assert until_heard(spin_until, estimates, estimate(450.0, sec=3), commands, count + 1)
+    assert [c.data for c in corrections] == [12.0]
 
 
 def test_controller_ignores_estimates_it_cannot_trust(controller_rig, spin_until):

@@ -185,6 +185,13 @@ class Commissioned:
     predictions: tuple[Prediction, ...]
     monitor: tuple[str, ...] = ()   # the drift monitor's settings (control.drift.identified)
 
+    @property
+    def written(self) -> list[str]:
+        """What ``identify`` writes for the job: the chosen candidate's settings with the
+        drift monitor's (which corrects a friction drift it reads in the cut), or nothing but
+        the uncommissioned defaults where it chose them."""
+        return [*self.chosen.sets, *(self.monitor if self.chosen.name != 'defaults' else ())]
+
 
 def identify_machine(machine: Machine, experiments: Path = EXPERIMENTS,
                      production: Sequence[str] | None = None) -> tuple[Identification, float]:

@@ -6,7 +6,9 @@ Subscribes ``force/estimate`` (turning_force_msgs/ForceEstimate), ``force/refere
 ``spindle_speed_rpm``, :class:`turning_force.nodes.spindle.SpindleSpeedInput`) and
 ``machine/tool`` (std_msgs/Int32: the tool in use selects its section of ``tools_file`` from the
 next estimate on, :meth:`turning_force.core.control.base.Controller.select_tool`); publishes
-``control/feed_command`` (turning_force_msgs/FeedCommand), stamped as the estimate it answers.
+``control/feed_command`` (turning_force_msgs/FeedCommand), stamped as the estimate it answers,
+and ``force/friction_correction`` (std_msgs/Float64 [N]) where the drift monitor read a friction
+drift in the cut for the estimator to take off (``drift_friction_correction``).
 It subscribes ``pmc/feed_override`` too: the override the bridge applied is the law's state
 wherever the request did not go through as asked (the tool out of the cut or entering it, the
 gate holding or shaping it), the anti-windup of
@@ -34,6 +36,7 @@ from turning_force.core.control import ControllerSettings, make_controller
 from turning_force.core.kernel.chain import command_for
 from turning_force.nodes.convert import estimate_from_msg, stamp_to_ns
 from turning_force.nodes.diagnostics import Diagnostics
+from turning_force.nodes.force_estimator import FRICTION_CORRECTION_TOPIC
 from turning_force.nodes.parameters import SettingsParameters
 from turning_force.nodes.spin import STREAM_DEPTH, node_main
 from turning_force.nodes.spindle import TOOL_TOPIC, SpindleSpeedInput
@@ -65,6 +68,7 @@ class ForceControllerNode(Node):
                                          settings.spindle_speed_rpm)
         self._publisher = self.create_publisher(FeedCommand, 'control/feed_command', STREAM_DEPTH)
         self._command = FeedCommand()   # refilled per estimate (rclpy serialises on publish)
+        self._correction = self.create_publisher(Float64, FRICTION_CORRECTION_TOPIC, 10)
         self.create_subscription(ForceEstimate, 'force/estimate', self._on_estimate, 10)
         self.create_subscription(Float64, 'force/reference', self._on_reference, REFERENCE_QOS)
         self._applied: collections.deque[FeedOverride] = collections.deque(maxlen=ANSWERS_KEPT)
@@ -130,6 +134,10 @@ class ForceControllerNode(Node):
         command.header = msg.header   # the estimate's, received anew each time
         self._publisher.publish(command)
         self.diagnostics.published('control/feed_command')
+        offset = self._controller.friction_correction()
+        if offset != 0.0:   # the drift monitor's friction reading, to the estimator
+            self._correction.publish(Float64(data=offset))
+            self.diagnostics.published(FRICTION_CORRECTION_TOPIC)
         if out.oscillating != self._oscillating:
             self._oscillating = out.oscillating
             self.diagnostics.set_value('oscillating', out.oscillating)

@@ -1,7 +1,11 @@
 """``force_estimator``: cutting force from the feed-drive currents.
 
 Subscribes ``servo/currents`` (turning_force_msgs/ServoCurrents); publishes ``force/estimate``
-(turning_force_msgs/ForceEstimate), one per block. The work is
+(turning_force_msgs/ForceEstimate), one per block. Subscribes ``force/friction_correction``
+(std_msgs/Float64 [N]): a friction drift the controller's drift monitor read in the cut, which
+the estimate takes off from the next block on
+(:meth:`~turning_force.core.estimation.estimator.ForceEstimator.correct`; a WARN on
+/diagnostics and in the log says so). The work is
 :class:`turning_force.core.estimation.estimator.ForceEstimator`; parameters are
 :class:`turning_force.core.estimation.settings.EstimatorSettings` (``ros2 param describe`` lists
 them with units and ranges). A block with non-finite samples or an out-of-order stamp is published
@@ -16,6 +20,7 @@ import sys
 from typing import Any
 
 from rclpy.node import Node
+from std_msgs.msg import Float64
 from turning_force_msgs.msg import ForceEstimate, ServoCurrents
 
 from turning_force.core import kernel
@@ -32,10 +37,12 @@ from turning_force.nodes.diagnostics import Diagnostics
 from turning_force.nodes.parameters import SettingsParameters
 from turning_force.nodes.spin import STREAM_DEPTH, node_main, timer_callback
 
-__all__ = ['ForceEstimatorNode', 'main']
+__all__ = ['FRICTION_CORRECTION_TOPIC', 'ForceEstimatorNode', 'main']
 
 
 STALE_CHECK_S = 0.1
+# The friction [N] the controller's drift monitor read in the cut (std_msgs/Float64).
+FRICTION_CORRECTION_TOPIC = 'force/friction_correction'
 
 
 # How a re-zero's estimate detail begins (estimator.rezeroed_text).
@@ -54,6 +61,8 @@ class ForceEstimatorNode(Node):
         self._publisher = self.create_publisher(ForceEstimate, 'force/estimate', STREAM_DEPTH)
         self._out = ForceEstimate()   # refilled per block (rclpy serialises on publish)
         self.create_subscription(ServoCurrents, 'servo/currents', self._on_currents, 10)
+        self.create_subscription(Float64, FRICTION_CORRECTION_TOPIC,
+                                 self._on_friction_correction, 10)
         self._watching = False
         self._logged_scale = 1.0
         self._rezeroed_s = math.nan   # when an air move last re-zeroed the friction [node s]
@@ -72,6 +81,14 @@ class ForceEstimatorNode(Node):
             out.header.stamp = self.get_clock().now().to_msg()
             self._publisher.publish(out)
             self.diagnostics.published('force/estimate')
+
+    def _on_friction_correction(self, msg: Float64) -> None:
+        self.diagnostics.received(FRICTION_CORRECTION_TOPIC)
+        line = self._estimator.correct(float(msg.data))
+        if line:
+            self._logged_scale = self._estimator.friction_scale   # no re-zero in air
+            self.diagnostics.set_value('friction_scale', self._logged_scale)
+            self.diagnostics.warn(line, log=True)
 
     def _on_currents(self, msg: ServoCurrents) -> None:
         self.diagnostics.received('servo/currents')

@@ -154,6 +154,15 @@ class Controller:
         monitor's measurement of the friction, :func:`.drift.drift_rezeroed`)."""
         update.control_rezeroed(self._params, self._state, float(scale))
 
+    def friction_correction(self) -> float:
+        """The friction [N] the drift monitor read in the cut since the last call, for the
+        estimator to take off its estimate (0: none; :func:`.drift.drift_correction`, whose
+        request this clears)."""
+        monitor = self._state[CS_DRIFT:CS_LAW]
+        offset = float(monitor[drift.DS_CORRECT])
+        monitor[drift.DS_CORRECT] = 0.0
+        return offset
+
     @property
     def resets(self) -> int:
         """How often the law was reset after a non-finite input or state."""

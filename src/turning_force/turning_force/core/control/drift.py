@@ -55,6 +55,14 @@ no member follows (a depth step of the program) restarts the window, as an entry
 alarm once it has stood for ``drift_memory_s`` of cutting (an air move pauses the count); the
 alarm holds (a drift is the machine's, not the cut's) until another cause is found, or the tool
 changes (:func:`drift_tool`: another tool, another identified model).
+
+The monitor acts on one cause: a friction drift read in the cut, which the estimator then takes
+off its estimate (:func:`drift_correction`, the estimator's ``estimator_correct``), as an air
+move's re-zero would; ``drift_friction_correction`` says which readings: those the window tells
+from a gain (``decided``), or every one named (``named``: an undecided level that was a gain
+of a few percent holds the force that much above the reference until an air move re-zeroes
+the friction), or none. The window starts afresh after a correction, and a friction left over
+is read and corrected a window later.
 """
 
 from __future__ import annotations
@@ -74,8 +82,9 @@ if TYPE_CHECKING:
     from turning_force.core.identify import Identification
     from turning_force.core.plant.settings import DepthProfile
 
-__all__ = ['CAUSES', 'PARAMS', 'STATE', 'alarm', 'drift_applied', 'drift_fill', 'drift_rezeroed',
-           'drift_step', 'drift_text', 'drift_tool', 'first_cut', 'identified', 'model_error']
+__all__ = ['CAUSES', 'CORRECTIONS', 'PARAMS', 'STATE', 'alarm', 'drift_applied',
+           'drift_correction', 'drift_fill', 'drift_rezeroed', 'drift_step', 'drift_text',
+           'drift_tool', 'first_cut', 'identified', 'model_error']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -87,6 +96,9 @@ N_MODELS = 1 + len(DEAD_OFFSETS) + len(SERVO_POWERS)
 # What drifted (the alarm's code, the trace's ``drift_alarm``).
 NONE, DEAD_TIME, SERVO, GAIN, FRICTION = range(5)
 CAUSES = ('', 'PMC dead time', 'servo', 'process gain', 'friction')
+# Which friction readings in the cut the estimator is corrected by (drift_friction_correction):
+# none, those the window tells from a gain, every one named (the undecided ones too).
+CORRECTIONS = ('none', 'decided', 'named')
 FIRST_RAMP_S = 3.0   # a job that starts on a taper: its first seconds count as its start
 # The re-zero reads the friction at the air move's feed through the identified curve's shape,
 # which the commissioning cut fitted at its own feeds: its relative error there, one standard
@@ -117,8 +129,8 @@ STEP_PERIODS = 5
 # --- parameters (dp) ---------------------------------------------------------------------------
 (D_ON, D_PERIOD, D_FORGET, D_SIGMAS, D_POLE, D_EXPONENT, D_SETTLE, D_MEMORY, D_K_LO, D_K_HI,
  D_K_STD, D_FRICTION, D_FRICTION_STD, D_FRICTION_MAX, D_DEAD, D_DEAD_STD, D_SERVO_STD,
- D_FIRST_S, D_K_FIRST_LO, D_K_FIRST_HI) = range(20)
-D_MODELS = 20
+ D_FIRST_S, D_K_FIRST_LO, D_K_FIRST_HI, D_CORRECT) = range(21)
+D_MODELS = 21
 # per member: delay [periods], servo b0 b1 b2 a1 a2 (direct form II transposed), cause, size
 M_DELAY, M_B0, M_B1, M_B2, M_A1, M_A2, M_CAUSE, M_SIZE = range(8)
 M_FIELDS = 8
@@ -131,12 +143,13 @@ PARAMS = D_MODELS + N_MODELS * M_FIELDS
 # where the cut cannot tell a gain from a friction drift, the other one's reading, and the time
 # in the cut since the monitor was armed (the run's start or the tool's change), how long
 # the tests have not found the cause standing, whether the estimator re-zeroed the friction
-# (REZ_*) and the scale it read last, and for how many periods in a row the best member's
+# (REZ_*) and the scale it read last, the friction the estimator is to take off its estimate
+# [N] (drift_correction: 0 none asked), and for how many periods in a row the best member's
 # residual has stood beyond STEP_SIGMAS (signed: its sign) of the window's mean square before.
 (DS_APPLIED, DS_AT, DS_STARTED, DS_IN_CUT, DS_S1, DS_SF, DS_SFF, DS_CAUSE, DS_SIZE,
  DS_SINCE, DS_ALARM, DS_ALARM_SIZE, DS_ALARM_STD, DS_ALARMS, DS_ALARM_ALT,
- DS_CUT_S, DS_LAPSE, DS_REZEROED, DS_SCALE, DS_STEP, DS_STEP_MS) = range(21)
-DS_HIST = 21
+ DS_CUT_S, DS_LAPSE, DS_REZEROED, DS_SCALE, DS_CORRECT, DS_STEP, DS_STEP_MS) = range(22)
+DS_HIST = 22
 # The re-zero: none yet, reading (its scale converging through the air move), a control
 # period without a reading (over once a second one passes), read (the last reading stands).
 REZ_NONE, REZ_READING, REZ_PAUSED, REZ_READ = range(4)
@@ -260,6 +273,7 @@ def drift_fill(c: ControllerBase) -> FloatArray:
     p[D_FIRST_S] = c.drift_first_s
     p[D_K_FIRST_LO] = c.drift_ksd_first_min_n_mm * feed
     p[D_K_FIRST_HI] = c.drift_ksd_first_max_n_mm * feed
+    p[D_CORRECT] = CORRECTIONS.index(c.drift_friction_correction)
     members = [(0.0, 1.0, NONE, 0.0)]
     members += [(j * h, 1.0, DEAD_TIME, j * h) for j in DEAD_OFFSETS]
     members += [(0.0, SERVO_RATIO ** k, SERVO, SERVO_RATIO ** k) for k in SERVO_POWERS]
@@ -562,6 +576,30 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
     ds[DS_SINCE] += h
     if ds[DS_SINCE] >= dp[D_MEMORY]:
         _raise(ds, cause, size, std, alt)
+        if cause == FRICTION and (dp[D_CORRECT] == 2.0 or (dp[D_CORRECT] == 1.0 and alt == 0.0)):
+            _correct(dp, ds, size)
+
+
+@compiled
+def _correct(dp: np.ndarray, ds: np.ndarray, size: float) -> None:
+    """The friction read in the cut, ``size`` of the identified friction's share of the force
+    more than the estimator subtracts: the estimator is to take that off its estimate
+    (:func:`drift_correction`), as an air move's re-zero would. The window saw the estimate
+    before it: it starts afresh (after the process's transient, D_SETTLE), and the cause
+    standing with it; the alarm holds. A friction left over (the window's feed is not the
+    cut's next one) is read and corrected again a window later."""
+    ds[DS_CORRECT] += size * dp[D_FRICTION]
+    _forget(ds)
+    ds[DS_SINCE] = 0.0
+
+
+@compiled
+def drift_correction(ds: np.ndarray) -> float:
+    """The friction [N] the monitor has asked the estimator to take off its estimate since
+    the last call (0: none; negative: to add), and the request cleared."""
+    offset: float = ds[DS_CORRECT]
+    ds[DS_CORRECT] = 0.0
+    return offset
 
 
 @compiled

@@ -275,6 +275,13 @@ class ControllerBase(Settings):
     drift_ksd_first_max_n_mm: float = setting(
         0.0, "Drift monitor: the identified K_s d at the deepest depth of the job's start",
         'N/mm', low=0.0, high=1e7)
+    drift_friction_correction: str = setting(
+        'decided', 'Drift monitor: where it names a friction drift in the cut, the estimator '
+        'takes it off its estimate at once, as an air move re-zeroes it (decided: where the '
+        'window tells it from a process gain; named: also where it cannot, a cut at one depth '
+        'and feed, where a gain drift of a few percent would be taken for friction and the '
+        'force held that much above the reference until an air move; none: it only says so)',
+        choices=drift.CORRECTIONS)
 
     def check(self) -> None:
         super().check()

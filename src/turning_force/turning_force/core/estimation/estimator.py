@@ -31,7 +31,8 @@ from turning_force.core.estimation.settings import (
 from turning_force.core.plant.drive import CurrentBlock
 from turning_force.core.plant.feeddrive import friction_current
 
-__all__ = ['ForceEstimator', 'detail_text', 'estimator_update', 'rezeroed_scale', 'rezeroed_text']
+__all__ = ['ForceEstimator', 'corrected_text', 'detail_text', 'estimator_correct',
+           'estimator_update', 'rezeroed_scale', 'rezeroed_text']
 
 FloatArray = npt.NDArray[np.float64]
 OK, STALE, INVALID_INPUT, SATURATED = (int(s) for s in EstimateStatus)
@@ -61,7 +62,7 @@ LEVEL_TIME_CONSTANT_S = 2.0
 # detail codes (ForceEstimator's one-line problems and notes)
 D_NONE, D_LENGTHS, D_DT_BAD, D_DT_CHANGED, D_NONFINITE, D_STAMP_NONFINITE = range(6)
 D_STAMP_NOT_AFTER, D_STAMP_JUMP, D_IMPLAUSIBLE, D_OVERFLOW, D_FILTER_OVERFLOW = range(6, 11)
-D_SATURATED, D_REZEROED = 11, 12
+D_SATURATED, D_REZEROED, D_CORRECTED = 11, 12, 13
 
 
 # --- the estimator (core/estimation.py ForceEstimator.update) -------------------------------
@@ -238,6 +239,41 @@ def estimator_update(ep: np.ndarray, es: np.ndarray, t0: float, dt: float, u: np
     return status
 
 
+@compiled
+def estimator_correct(ep: np.ndarray, es: np.ndarray, offset_n: float) -> None:
+    """The drift monitor read a friction drift in the cut (:func:`.drift.drift_correction`):
+    ``offset_n`` [N] more friction than the estimator subtracts. The friction scale takes it
+    at the last block's feed (Park Eq. 25 scaled, within ``rezero_max_change``, as the re-zero
+    in air), and the filter's state and the force's level move by what the scale took, as if
+    the filter had seen the corrected force all along (it is linear: a constant input's
+    steady state superposes): the next block's estimate steps, without a transient of the
+    filter's own. The detail says so (D_CORRECTED: the new scale, the force taken off)."""
+    scale = es[ES_SCALE]
+    per = ep[E_MAP_PER]
+    calibrated = es[ES_IFR] / scale if scale != 0.0 else 0.0
+    if not (math.isfinite(offset_n) and calibrated > 0.0 and per > 0.0):
+        return
+    limit = ep[E_REZ_MAX]
+    new_scale = pymin(pymax(scale + offset_n * per / calibrated, 1.0 - limit), 1.0 + limit)
+    taken = (new_scale - scale) * calibrated / per
+    es[ES_SCALE] = new_scale
+    es[ES_LEVEL] -= taken
+    if ep[E_KIND] == KALMAN:
+        es[ES_X] -= taken
+    else:
+        for s in range(int(ep[E_NSEC])):
+            es[ES_X + 2 * s] -= ep[E_SOS_ZI + 2 * s] * taken
+            es[ES_X + 2 * s + 1] -= ep[E_SOS_ZI + 2 * s + 1] * taken
+        es[ES_X + 8] -= ep[E_DB1] * taken
+    es[ES_DCODE], es[ES_DVAL], es[ES_DVAL + 1] = D_CORRECTED, new_scale, taken
+
+
+@entry('void(float64[::1], float64[::1], float64)')
+def estimate_correct(ep: Arr, es: Arr, offset_n: float) -> None:
+    """:func:`estimator_correct` from Python (the estimator node, the per-block chain)."""
+    estimator_correct(ep, es, offset_n)
+
+
 @entry('int64(float64[::1], float64[::1], float64, float64, float64[::1], float64[::1], '
       'float64[::1], float64[::1], float64[::1])')
 def estimate_block(ep: Arr, es: Arr, t0: float, dt: float, u: Arr, v: Arr, angle: Arr,
@@ -297,6 +333,16 @@ class ForceEstimator:
     def friction_scale(self) -> float:
         """Re-zeroed friction / calibrated friction."""
         return float(self._state[ES_SCALE])
+
+    def correct(self, offset_n: float) -> str:
+        """The drift monitor's friction reading in the cut (:func:`estimator_correct`), taken
+        from the next block on: the line that says what it did ('' where it did nothing)."""
+        state = self._state
+        state[ES_DCODE] = D_NONE
+        estimate_correct(self._params, state, float(offset_n))
+        if state[ES_DCODE] != D_CORRECTED:
+            return ''
+        return corrected_text(float(state[ES_DVAL]), float(state[ES_DVAL + 1]))
 
     @property
     def restarts(self) -> int:
@@ -430,6 +476,8 @@ def detail_text(settings: EstimatorSettings, block: CurrentBlock, code: int, a: 
         return f'force filter overflowed (|i| up to {a:.3g} A)'
     if code == D_SATURATED:
         return f'phase current {a:.3g} A beyond the sensor range'
+    if code == D_CORRECTED:
+        return corrected_text(a, b)
     return rezeroed_text(a)
 
 
@@ -440,6 +488,13 @@ REZEROED_UNIT = ' x calibrated'
 def rezeroed_text(scale: float) -> str:
     """The line for a friction re-zero to ``scale``."""
     return f'{REZEROED_TEXT}{scale:.3f}{REZEROED_UNIT}'
+
+
+def corrected_text(scale: float, taken_n: float) -> str:
+    """The line for the drift monitor's friction correction in the cut to ``scale``, the
+    estimate ``taken_n`` [N] lower."""
+    return (f'friction corrected in the cut by the drift monitor: {scale:.3f}{REZEROED_UNIT} '
+            f'(estimate {-taken_n:+.1f} N); an air move re-zeroes it')
 
 
 def rezeroed_scale(detail: str) -> float | None:

@@ -19,7 +19,7 @@ so all of them make the same decisions from the same blocks.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -117,6 +117,11 @@ class ControlChain:
         command = command_for(self.controller, estimate)
         if command is not None:
             self.gate.on_command(command.override_pct, t_s, command.reachable)
+            # the friction the drift monitor read in the cut, off from the next block on
+            offset = self.controller.friction_correction()
+            line = self.estimator.correct(offset) if offset != 0.0 else ''
+            if line:
+                estimate = replace(estimate, detail=line)
         decision = self.gate.answer(t_s)
         self.controller.applied(decision.applied_pct, decision.engaged, decision.reason)
         learned = self.gate.take_learned()

@@ -21,8 +21,11 @@ from turning_force.core.compiled import (
     compiled,
     entry,
 )
+from turning_force.core.control.drift import drift_correction
 from turning_force.core.control.law import (
     C_REF,
+    CS_DRIFT,
+    CS_LAW,
     OUT_DRIFT,
     OUT_DRIFT_SIZE,
     OUT_ERR,
@@ -50,6 +53,7 @@ from turning_force.core.estimation.estimator import (
     ES_STATUS,
     OK,
     SATURATED,
+    estimator_correct,
     estimator_update,
 )
 from turning_force.core.plant.lathe import P_DT, P_N, P_SPEED_WIRED, TRUTH_ROWS, plant_step
@@ -99,8 +103,10 @@ def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
     where not given; a new tool number selects its rows of the tool tables ``gtools``, the
     gate's, and ``ctools``, the controller's, :mod:`turning_force.core.tools`) -> estimator ->
     gate.on_estimate, gate.on_feed (the axis feed against the override) -> controller (at the
-    spindle speed) -> gate.on_command -> gate.answer (DEC_* into ``dec``) -> the controller
-    told the override applied (its anti-windup,
+    spindle speed; the friction its drift monitor read in the cut to the estimator,
+    :func:`~turning_force.core.estimation.estimator.estimator_correct`) -> gate.on_command ->
+    gate.answer (DEC_* into ``dec``) -> the controller told the override applied (its
+    anti-windup,
     :func:`~turning_force.core.control.update.controller_applied`: out of the cut, or where the
     gate held or shaped the request); a learning cut that has just been learned sets the
     controller's reference from the next block on; a cut that ended goes to ``cuts`` (row
@@ -122,6 +128,11 @@ def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
     if acted:
         controller_update(cp, cs, clevels, force, rate, out)
         gate_on_command(gs, out[OUT_PCT], t_end, out[OUT_REACH])
+        # a friction drift the drift monitor read in the cut: the estimator takes it off
+        # from the next block on (this block's detail says so)
+        offset = drift_correction(cs[CS_DRIFT:CS_LAW])
+        if offset != 0.0:
+            estimator_correct(ep, es, offset)
     gate_answer(gp, gs, glevels, t_end, dec)
     controller_applied(cp, cs, dec[DEC_APPLIED], dec[DEC_ENGAGED] != 0.0, int(dec[DEC_REASON]))
     if gs[GS_LEARNED] != 0.0:
