@@ -49,9 +49,7 @@ the friction's as read in air), are not drift; nor is an offset
 larger than the friction change the estimator's re-zero would follow
 (``drift_friction_max_change``, its ``rezero_max_change``). Where the window cannot tell a gain
 from an offset (a cut at one depth and feed shows a level more than its cause), the alarm
-names both, as above. A step in the force that
-no member follows (a depth step of the program) restarts the window, as an entry does
-(:data:`STEP_SIGMAS`). A cause raises the
+names both, as above. A cause raises the
 alarm once it has stood for ``drift_memory_s`` of cutting (an air move pauses the count); the
 alarm holds (a drift is the machine's, not the cut's) until another cause is found, or the tool
 changes (:func:`drift_tool`: another tool, another identified model).
