@@ -236,28 +236,6 @@ def test_lag_drifts_are_named_on_a_taper() -> None:
     assert not unchanged.trace['drift_alarm'].any(), unchanged.drift
 
 
-def test_a_depth_step_restarts_the_window() -> None:
-    # bench_drift.py --seed 37, #4: 145 ms of PMC dead time and a 0.28 s servo on the 'long'
-    # job (1.5 mm, then 2.5 mm from 3 s, and on). With 72 ms more dead time the loop cycles;
-    # by 3 s the bank's +80 ms member left a thirtieth of the identified model's residual, a
-    # statistic of 17 against 16. The step to 2.5 mm, which no member follows, put the same
-    # residual on every member of a window fitted with one gain: the statistic fell to 1, and
-    # no drift was named in 24 s. The step now restarts the window (drift.STEP_SIGMAS): named
-    # at 4.9 s of cutting (the same on a CPU without AVX-512), within a step of the bank.
-    machine, sets = generated(37, 4)
-    assert machine.job == 'long'
-    longer = {'pmc_dead_time_s': 1.5 * machine.plant['pmc_dead_time_s']}
-    result = simulate(population.job_experiment(replace(machine, drifted=longer)).with_sets(
-        sets))
-    named = result.trace['drift_alarm']
-    assert CAUSES[int(named[np.flatnonzero(named)[0]])] == 'PMC dead time', result.drift
-    assert result.metrics['drift_alarm_s'] <= 5.0
-    assert result.trace['drift_size'][-1] == pytest.approx(
-        0.5 * machine.plant['pmc_dead_time_s'], abs=0.01), result.drift
-    unchanged = simulate(population.job_experiment(machine).with_sets(sets))
-    assert not unchanged.trace['drift_alarm'].any(), unchanged.drift
-
-
 def test_a_friction_drift_is_named_at_the_jobs_start_without_an_air_move() -> None:
     # bench_drift.py --seed 29, #2 on the 'deep' job: 1 mm for 5 s from the start, where the
     # depth is known (drift_first_s), then 3.5 mm; no air move. 25 % more friction adds 22 N
