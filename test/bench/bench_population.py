@@ -239,7 +239,9 @@ def reason(machine: Machine, oracle: tuple[float, float, int]) -> str:
         bias = ((factor - 1.0) * DRIVE.friction_at_max_feed_a / per_force,
                 (factor - 1.0) * DRIVE.friction_at_min_feed_a / per_force)
         return (f'friction drift x{factor:.2f}: the estimator keeps the commissioned curve, '
-                f'{bias[0]:.0f}-{bias[1]:.0f} N of bias no law sees; {numbers}')
+                f'{bias[0]:.0f}-{bias[1]:.0f} N of bias no law sees (the sweep runs no drift '
+                f'monitor; a commissioned run corrects it where the monitor tells it from a '
+                f'gain); {numbers}')
     if steady <= BAND_STEADY_N:
         return f'noise: ripple {ripple:.1f} N p-p > {BAND_RIPPLE_N:g} N at best; {numbers}'
     if dead_ms >= 100.0:
