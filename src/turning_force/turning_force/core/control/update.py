@@ -475,8 +475,9 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
                       rate: float, out: np.ndarray) -> None:
     """One control period: the law, the guard on its state, the error-feedback quantiser,
     the reachability flag, the oscillation alarm with its reaction and the drift monitor
-    (:mod:`.drift`, which only watches); out = (pct, error, s, reachable, oscillating, drift,
-    drift's size)."""
+    (:mod:`.drift`, which sets no feed: it names drifts, and asks the estimator to take off a
+    friction drift it reads, :func:`.drift.drift_correction`); out = (pct, error, s,
+    reachable, oscillating, drift, drift's size)."""
     error = force - cp[C_REF]
     out[OUT_OSC] = cs[CS_O_ALARM]
     monitor = cs[CS_DRIFT:CS_LAW]
