@@ -240,3 +240,21 @@ def test_an_entry_point_the_cache_misses_compiles_with_its_callees(tmp_path):
     assert run.returncode == 0, run.stderr[-2000:]
     expected = make_controller(ControllerSettings()).update(500.0, 0.0).override_pct
     assert float(run.stdout.split()[-1]) == expected
+
+
+def test_the_ahead_of_time_module_is_named_for_the_processor_it_was_compiled_for(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # A cache folder on a network home is shared by machines: a module compiled for 'host' on
+    # one processor (AVX-512, say) must not be the module another processor loads.
+    from turning_force.core import aot
+
+    monkeypatch.delenv('NUMBA_CPU_NAME', raising=False)
+    monkeypatch.setattr(aot, '_host_features', lambda: 'model name: A|flags: avx512f')
+    first = aot.module_name()
+    monkeypatch.setattr(aot, '_host_features', lambda: 'model name: B|flags: avx2')
+    assert aot.module_name() != first
+    # a named CPU is the same on every processor: its name says all
+    monkeypatch.setenv('NUMBA_CPU_NAME', 'generic')
+    generic = aot.module_name()
+    monkeypatch.setattr(aot, '_host_features', lambda: 'model name: A|flags: avx512f')
+    assert aot.module_name() == generic

@@ -48,9 +48,25 @@ def cpu_name() -> str:
     return os.environ.get('NUMBA_CPU_NAME', '').strip() or 'host'
 
 
+def _host_features() -> str:
+    """What 'host' compiles for, where the cache folder is shared by machines (a home folder on
+    the network): the processor's model and instruction set extensions as Linux lists them
+    (empty where it does not). A module compiled for one processor's extensions never loads on
+    another's, where it could stop on an illegal instruction."""
+    try:
+        text = Path('/proc/cpuinfo').read_text(errors='replace')
+    except OSError:
+        return ''
+    keep = ('model name', 'flags')
+    lines = [line for line in text.splitlines() if line.split(':')[0].strip() in keep]
+    return '|'.join(dict.fromkeys(lines))   # the first processor's, once
+
+
 def module_name() -> str:
-    """The extension module's name: what it was compiled for (the CPU, bounds checks, numpy)."""
-    key = f'{cpu_name()}|{os.environ.get("NUMBA_BOUNDSCHECK", "")}|{np.__version__}'
+    """The extension module's name: what it was compiled for (the CPU, and for 'host' this
+    processor's model and extensions; bounds checks; numpy)."""
+    host = _host_features() if cpu_name() == 'host' else ''
+    key = f'{cpu_name()}|{host}|{os.environ.get("NUMBA_BOUNDSCHECK", "")}|{np.__version__}'
     cpu = re.sub(r'\W', '_', cpu_name())
     return f'turning_force_aot_{cpu}_{hashlib.sha256(key.encode()).hexdigest()[:10]}'
 
