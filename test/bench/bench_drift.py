@@ -1,11 +1,15 @@
 """The drift monitor on generated machines (issue 16 item 2): each machine of the commissioning
-issue's generator is commissioned as it is (the commissioning experiment recorded, ``identify``
-with its job's depths: the identified model and the monitor's settings), then its job is cut on
-the machine unchanged and after each of the issue's drifts: PMC dead time +50 %, process gain
-+40 % (K_s), feed friction +25 %, servo x1.8 (tau, or 1 / w_n). Printed for each: the time from
-the first entry into the cut to the first alarm, the cause named and its size, and a summary:
-the right cause named within 5 s of cutting, and alarms on the unchanged machine. ``--job``
-cuts every machine's job as that one of the generator's (a taper, say) instead::
+issue's generator is commissioned as it is, as the user's flow does it (the commissioning
+experiment recorded, ``identify`` with its job's depths, the closed-loop verification's choice
+of law and what it writes: the identified model and the monitor's settings), then its job is
+cut on the machine unchanged and after each of the issue's drifts: PMC dead time +50 %,
+process gain +40 % (K_s), feed friction +25 %, servo x1.8 (tau, or 1 / w_n). Printed for each:
+the steady error (and an oscillation alarm where one was raised), the time from the first
+entry into the cut to the first drift alarm, the cause named and its size, and a summary: the
+right cause named within 5 s of cutting, and alarms on the unchanged machine. ``--job`` cuts
+every machine's job as that one of the generator's (a taper, say) instead; ``--flow
+identified`` cuts with the identified model under the default law (the sliding mode law),
+no verification::
 
     .venv/bin/python test/bench/bench_drift.py --machines 8 --seed 16
     .venv/bin/python test/bench/bench_drift.py --machines 6 --seed 16 --job taper
@@ -23,6 +27,7 @@ import numpy as np
 from turning_force.commands.population import (
     JOBS,
     Machine,
+    commission,
     draw,
     identified_sets,
     identify_machine,
@@ -57,18 +62,28 @@ def main() -> None:
     parser.add_argument('--seed', type=int, default=16)
     parser.add_argument('--job', choices=sorted(JOBS),
                         help="every machine's job (default: its own)")
+    parser.add_argument('--flow', choices=('commissioned', 'identified'), default='commissioned',
+                        help="commissioned (default): the settings the user's flow writes, the "
+                             'law closed-loop verification chose with the monitor beside it; '
+                             'identified: the identified model under the default law')
     args = parser.parse_args()
     right = dict.fromkeys(CAUSES[1:], 0)
     false_alarms = 0
     for machine in draw(args.machines, args.seed):
         # commissioned as it is
         machine = replace(machine, drift='', drifted={}, job=args.job or machine.job)
-        ident, cut_depth = identify_machine(machine)
-        identified, monitor = identified_sets(machine, ident, cut_depth)
-        print(machine.describe())
+        if args.flow == 'commissioned':
+            commissioned = commission(machine)
+            sets = commissioned.written
+            law = commissioned.chosen.name
+        else:
+            ident, cut_depth = identify_machine(machine)
+            identified, monitor = identified_sets(machine, ident, cut_depth)
+            sets, law = identified + monitor, 'the default law, identified model'
+        print(f'{machine.describe()}; {law}')
         for cause, change in {'(none)': {}, **drifted(machine)}.items():
             run = replace(machine, drifted=change)
-            result = simulate(job_experiment(run).with_sets(identified + monitor))
+            result = simulate(job_experiment(run).with_sets(sets))
             named = result.trace['drift_alarm']
             # the first cause named (not argmax: that is the largest code)
             first = CAUSES[int(named[np.flatnonzero(named)[0]])] if named.any() else ''
@@ -78,8 +93,10 @@ def main() -> None:
                 false_alarms += bool(first)
             else:
                 right[cause] += ok
-            print(f'  {cause:14s} alarm at {at_s:5.2f} s: {first or "none":14s} '
-                  f'{result.drift or "-"}')
+            steady = result.metrics['steady_mean_abs_error_n']
+            cycle = ', oscillation alarm' if result.metrics.get('oscillation_alarms') else ''
+            print(f'  {cause:14s} steady {steady:6.2f} N{cycle}, alarm at {at_s:5.2f} s: '
+                  f'{first or "none":14s} {result.drift or "-"}')
     job = f', job {args.job}' if args.job else ''
     print(f'{args.machines} machines, seed {args.seed}{job}: the right cause within '
           f'{DEADLINE_S:g} s: '
