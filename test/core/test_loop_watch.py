@@ -8,6 +8,8 @@ the start of those 2 s."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -16,11 +18,19 @@ from test_kernel import EXPERIMENTS, FIG8
 
 from turning_force.commands import population
 from turning_force.core.control import make_controller
-from turning_force.core.control.law import CS_O_CROSSOVER, CS_O_HOLD
+from turning_force.core.control.law import (
+    CS_O_CROSSOVER,
+    CS_O_HALF,
+    CS_O_HOLD,
+    CS_O_TOP,
+    model_half_period_s,
+)
+from turning_force.core.control.settings import ControllerSettings
 from turning_force.core.control.update import (
     DETUNE_P,
     DETUNE_RATIO,
     FASTEST_RATIO,
+    RECYCLE_RATIO,
     TAIL_RATE_PER_S,
 )
 from turning_force.core.errors import ConfigError
@@ -295,6 +305,75 @@ def test_the_detune_reaction_runs_at_the_crossover_the_cycle_gives():
     # 0.01 s in 0.3 s, 4 %
     w_u = 2.0 * np.pi / period_s
     assert state[CS_O_CROSSOVER] == pytest.approx(w_u / DETUNE_RATIO, rel=0.04)
+
+
+def test_a_slow_cycle_of_the_reaction_s_own_is_seen_and_slows_it():
+    # After the alarm on a 0.6 s cycle (the crossover w_u / DETUNE_RATIO, 2.1 rad/s), the
+    # force cycles at 300 N and 3.2 s, half-periods of 1.6 s: slower than REACTION_HALF_RATIO
+    # (4) times the alarmed cycle's 0.3 s, which alone the detector counted under the reaction
+    # before (bench_drift's seed 37 #4 cycled so for 20 s, unseen). On its fourth swing the
+    # crossover falls to at most the reaction's cycle's frequency over RECYCLE_RATIO, and the
+    # crossover's ceiling and the half-period the reaction works with follow.
+    controller, state, dt, _ = alarmed(0.6)
+    detuned = state[CS_O_CROSSOVER]
+    w_r = 2.0 * np.pi / 3.2
+    for k in range(round(8.0 / dt)):
+        phase = w_r * k * dt
+        out = controller.update(500.0 + 300.0 * np.cos(phase), -300.0 * w_r * np.sin(phase))
+        controller.applied(out.override_pct, True, int(Reason.NORMAL))
+    # the half-periods read at turning points found a control period late at most (0.01 s in
+    # 1.6 s) and after the hysteresis (a third of 50 N on a 300 N cosine: 0.02 s): 2 %
+    assert state[CS_O_CROSSOVER] <= w_r / RECYCLE_RATIO * 1.02
+    assert state[CS_O_CROSSOVER] < 0.5 * detuned
+    assert state[CS_O_HALF] == pytest.approx(1.6 / RECYCLE_RATIO, rel=0.02)
+    assert state[CS_O_TOP] == pytest.approx(np.pi / (FASTEST_RATIO * state[CS_O_HALF]))
+
+
+def test_a_depth_step_s_slow_return_is_no_cycle_of_the_reaction():
+    # A depth step's rise and slow return under the reaction, then calm, three times 3 s
+    # apart: one long swing between short ones, no cycle (its half-periods do not keep a
+    # pace), the crossover left alone.
+    controller, state, dt, _ = alarmed(0.6)
+    detuned = state[CS_O_CROSSOVER]
+    for k in range(round(9.0 / dt)):
+        t = (k * dt) % 3.0
+        share = 0.6 * np.exp(-1.5 * t) * min(t / 0.1, 1.0)   # a 0.1 s rise, a 1.5 /s return
+        out = controller.update(500.0 * np.exp(share), 0.0)
+        controller.applied(out.override_pct, True, int(Reason.NORMAL))
+    assert state[CS_O_CROSSOVER] >= detuned
+
+
+def test_the_model_s_half_period_is_where_its_phase_reaches_180_degrees():
+    # Analysis: a dead time L alone cycles at w_u = pi / L, a half-period of L; with a
+    # first-order lag tau = L, at x + atan(x) = pi, x = w_u L = 2.0288 (the tau_c of 1e-6 s
+    # moves it by 1e-5). The default model (no dead time, two lags) never reaches -180
+    # degrees: no bound.
+    assert model_half_period_s(ControllerSettings()) == 0.0
+    tiny = {'model_servo_time_constant_s': 1e-6, 'model_cutting_time_constant_s': 1e-6}
+    dead = ControllerSettings(model_dead_time_s=0.1, **tiny)
+    assert model_half_period_s(dead) == pytest.approx(0.1, rel=1e-4)
+    lagged = ControllerSettings(model_dead_time_s=0.1, **{**tiny,
+                                                         'model_servo_time_constant_s': 0.1})
+    assert model_half_period_s(lagged) == pytest.approx(np.pi * 0.1 / 2.0288, rel=1e-4)
+
+
+def test_a_commissioned_reaction_does_not_cycle_after_a_dead_time_drift():
+    # bench_drift's seed 37 #4 (PMC dead time 145 ms, servo 0.28 s), commissioned, then its
+    # dead time +50 %: the SMC rings at half-periods of 0.09 s and is alarmed; from that ring
+    # alone the reaction's crossover was 6.8 rad/s, above the loop's w_u, and it cycled at
+    # 300-1,400 N for the rest of the 24 s job (ripple_p2p_n 1,374 N). With the identified
+    # model's half-period (0.33 s) as the least, its ripple is about that of the machine
+    # unchanged (91 N against 85 N; the job's x3 depth steps on a 0.2 s dead time leave some
+    # in the last second before each change): 150 N bounds it with room, a ninth of the
+    # cycle's.
+    machine = population.draw(6, 37)[4]
+    machine = replace(machine, drift='', drifted={})
+    ident, cut_depth = population.identify_machine(machine)
+    identified, monitor = population.identified_sets(machine, ident, cut_depth)
+    drifted = replace(machine, drifted={'pmc_dead_time_s': 1.5 * machine.plant['pmc_dead_time_s']})
+    result = simulate(population.job_experiment(drifted).with_sets(identified + monitor))
+    assert result.metrics['oscillation_alarms'] == 1.0
+    assert result.metrics['ripple_p2p_n'] <= 150.0
 
 
 @pytest.mark.parametrize(('rate_per_s', 'overshoot', 'quickened'), [

@@ -28,6 +28,7 @@ from turning_force.core.control.law import (
     C_LAW,
     C_MAX,
     C_MIN,
+    C_MODEL_HALF,
     C_OSC_COUNT,
     C_OSC_REACTION,
     C_OSC_SWING,
@@ -51,6 +52,7 @@ from turning_force.core.control.law import (
     OUT_S,
     OUT_SIZE,
     ControlOutput,
+    model_half_period_s,
     set_spindle_speed,
 )
 from turning_force.core.control.registry import CONTROLLERS, names
@@ -233,6 +235,7 @@ def _params(c: ControllerSettings, table: OverrideTable) -> tuple[FloatArray, in
     p[C_FEED_REV] = c.programmed_feed_mm_rev
     p[C_RPM_SET] = p[C_RPM] = c.spindle_speed_rpm
     p[C_EXPONENT] = c.model_cutting_exponent
+    p[C_MODEL_HALF] = model_half_period_s(c)
     p[C_DRIFT:C_LAW] = drift.drift_fill(c)
     p[C_LAW:] = own
     return p, size

@@ -71,7 +71,11 @@ C_FEED_REV, C_RPM_SET, C_RPM = range(13, 16)
 # The feed exponent g the laws assume (model_cutting_exponent): the oscillation reaction's
 # feed-forward of a depth step (.update._feed_forward).
 C_EXPONENT = 16
-C_DRIFT = 17   # the drift monitor's parameters (.drift), drift.PARAMS of them
+# The half-period at which the identified model (model_*: dead time, servo, tau_c) would cycle,
+# pi / w_u with its phase -180 degrees at w_u, 0 where it never gets there: the oscillation
+# reaction's least half-period (.update._alarm; :func:`model_half_period_s`).
+C_MODEL_HALF = 17
+C_DRIFT = 18   # the drift monitor's parameters (.drift), drift.PARAMS of them
 C_LAW = C_DRIFT + drift.PARAMS
 # State every law has (cs): the request held, the quantiser's carry, the time pinned at an end
 # of the table and which end, the resets; whether the tool is in the cut (the last override
@@ -103,7 +107,10 @@ CS_PIN_ERROR = 29
 # answer to the level's moves since.
 CS_O_FF_PHASE, CS_O_FF_TIME, CS_O_FF_LEVEL, CS_O_FF_SHARE, CS_O_FF_NEAR, CS_O_FF_FAR = \
     range(30, 36)
-CS_DRIFT = 36   # the drift monitor's state (.drift), drift.STATE values
+# The detune reaction's ceiling on its crossover (.update._quicken; lowered where the
+# reaction's own loop cycled slowly: .update._recycle), and the time since the alarm.
+CS_O_TOP, CS_O_AGE = 36, 37
+CS_DRIFT = 38   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
@@ -129,6 +136,29 @@ def spindle_speed(cp: np.ndarray, rpm: float) -> None:
 def set_spindle_speed(cp: Arr, rpm: float) -> None:
     """:func:`spindle_speed` from Python (the controller node)."""
     spindle_speed(cp, rpm)
+
+
+def model_half_period_s(c: ControllerBase) -> float:
+    """pi / w_u of the model the laws assume: w_u where the phase of exp(-L s) over the servo
+    (first or second order, Park Eq. 2, Hwang & Chen Eq. 1) and the cut's lag tau_c (Park Eq. 1)
+    reaches -180 degrees, found by bisection below the loop's Nyquist rate; 0 where it does not
+    get there (the default model, no dead time and two first-order lags)."""
+
+    def phase(w: float) -> float:
+        if c.model_servo_model == 'first_order':
+            servo = math.atan(w * c.model_servo_time_constant_s)
+        else:
+            r = w / c.model_servo_natural_freq_rad_s
+            servo = math.atan2(2.0 * c.model_servo_damping * r, 1.0 - r * r)
+        return w * c.model_dead_time_s + servo + math.atan(w * c.model_cutting_time_constant_s)
+
+    low, high = 0.0, c.nyquist_rad_s
+    if phase(high) < math.pi:
+        return 0.0
+    for _ in range(60):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if phase(middle) < math.pi else (low, middle)
+    return math.pi / high
 
 
 @compiled

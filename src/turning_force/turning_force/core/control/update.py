@@ -36,6 +36,7 @@ from turning_force.core.control.law import (
     C_LAW,
     C_MAX,
     C_MIN,
+    C_MODEL_HALF,
     C_OSC_COUNT,
     C_OSC_REACTION,
     C_OSC_SWING,
@@ -48,6 +49,7 @@ from turning_force.core.control.law import (
     CS_ENGAGED,
     CS_HELD,
     CS_LAW,
+    CS_O_AGE,
     CS_O_ALARM,
     CS_O_ALARMS,
     CS_O_COUNT,
@@ -76,6 +78,7 @@ from turning_force.core.control.law import (
     CS_O_SWING_BEFORE,
     CS_O_TAIL,
     CS_O_TAIL_SIGN,
+    CS_O_TOP,
     CS_O_WAIT,
     CS_PIN_ERROR,
     CS_PINNED,
@@ -133,7 +136,26 @@ OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.07, 2.0
 # under the reaction (half-periods of 1.8 s against the cycle's 0.19 s) and its small
 # overshoot after a x3 step were read as the reaction cycling, and halved the crossover of 4
 # of the 9 runs the reaction left over the ripple bound on seeds 7 and 23.
+# A slower cycle of the reaction's own counts too where its swings keep their pace (each
+# half-period within REACTION_REGULAR of the mean of those counted before it: a depth step's
+# slow return is one long swing between short ones; the log law's cycle rises faster than it
+# falls, half-periods of 0.64 and 1.04 s in turn). Such a cycle said that the alarmed one was
+# not the loop's own: on bench_drift's seed 37 #4 (PMC dead time 145 -> 218 ms, commissioned)
+# the SMC's fast ring (half-periods of 0.09 s) set the crossover at 6.8 rad/s, above the
+# loop's w_u (about 7.3: 218 ms, a 0.28 s servo, tau_c 0.066 s), and the reaction cycled at
+# half-periods of 0.6-1.0 s with 300-1,400 N swings for the rest of the job, unseen. Its
+# crossover is then at most the reaction's cycle's frequency over RECYCLE_RATIO (a PI law
+# cycles where the process's phase is -90 to -180 degrees; half that frequency leaves it
+# about 60 degrees of margin), the cycle's half-period over RECYCLE_RATIO stands for the
+# alarmed one from then on (the crossover's ceiling and the step answer's lags), and the level
+# restarts from the reaction's cycle's mean. Swings in the first SETTLE_HALVES of the alarmed
+# half-periods after the alarm are not counted: the alarmed cycle dies away under the reaction
+# there (swings of 0.82, 0.67 and 1.12 of the one before on seed 23's #44, counted as the
+# reaction cycling, halved its crossover and left it 83 N over the ripple bound, 44 N without;
+# calmed on the held-out seeds 31 and 61: 52 and 49, from 51 and 48; seeds 15, 7, 23, 43 as
+# before).
 REACTION_HALF_RATIO = 4.0
+REACTION_REGULAR, RECYCLE_RATIO, SETTLE_HALVES = 2.0, 2.0, 4.0
 # The detune reaction: the limit cycle's frequency w_u = 2 pi / T_u bounds the loop's. The
 # force being about proportional to the feed (F = K u, K set by the depth), the law works on
 # logarithms, where the process is a gain of 1 whatever K: a PI law on the relative feed,
@@ -279,20 +301,30 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     away: the last two swings together (a period's peak to peak) at least OSC_DECAY of the two
     before; the third after a kick whatever its size against the kick's, the fourth at least
     OSC_DECAY of the third. Otherwise the count starts afresh. Under the alarm (the reaction
-    running), no kick, and half-periods of REACTION_HALF_RATIO times the alarmed cycle's at
-    most."""
+    running), no kick, no swing in the first SETTLE_HALVES alarmed half-periods, and a swing
+    goes on the count where it and those counted before it
+    took REACTION_HALF_RATIO times the alarmed cycle's half-period at most, or where it took
+    within REACTION_REGULAR of their mean (a slower cycle of the reaction's own)."""
     swing, half = abs(extreme - cs[CS_O_LAST]), cs[CS_O_SINCE]
     last, before = cs[CS_O_SWING], cs[CS_O_SWING_BEFORE]
-    slowest = OSC_HALF_MAX_S if cs[CS_O_ALARM] == 0.0 else pymin(
-        OSC_HALF_MAX_S, REACTION_HALF_RATIO * cs[CS_O_HALF])
-    counts = swing >= cp[C_OSC_SWING] and OSC_HALF_MIN_S <= half <= slowest
+    counts = swing >= cp[C_OSC_SWING] and OSC_HALF_MIN_S <= half <= OSC_HALF_MAX_S and (
+        cs[CS_O_ALARM] == 0.0 or cs[CS_O_AGE] >= SETTLE_HALVES * cs[CS_O_HALF])
+    chains = True
+    if cs[CS_O_ALARM] != 0.0 and cs[CS_O_COUNT] > 0.0:
+        # under the reaction: a swing within REACTION_HALF_RATIO of the alarmed half-period
+        # after others as fast, or one about as long as the swings counted before it (a cycle
+        # of the reaction's own, however slow)
+        fast = REACTION_HALF_RATIO * cs[CS_O_HALF]
+        counted = cs[CS_O_HALVES] / cs[CS_O_COUNT]
+        chains = (half <= fast and counted <= fast) or (
+            half <= REACTION_REGULAR * counted and counted <= REACTION_REGULAR * half)
     kicked = cs[CS_O_COUNT] == 2.0 and cs[CS_O_ALARM] == 0.0 and (
         cs[CS_O_GREW] != 0.0 or last >= OSC_DECAY * before)
     lasting = kicked or swing >= OSC_DECAY * last or (
         cs[CS_O_PAIRED] != 0.0 and swing + last >= OSC_DECAY * (last + before))
     cs[CS_O_GREW] = 1.0 if swing >= last else 0.0
     cs[CS_O_PAIRED] = 0.0 if kicked else 1.0
-    if counts and cs[CS_O_COUNT] > 0.0 and lasting:
+    if counts and cs[CS_O_COUNT] > 0.0 and lasting and chains:
         cs[CS_O_COUNT] += 1.0
         cs[CS_O_HALVES] += half
     else:
@@ -319,7 +351,9 @@ def _implied(cp: np.ndarray, level: float, force: float) -> float:
 def _alarm(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
     """The alarm is raised: the level the reaction starts from (the cycle's mean), and the
     detune reaction's crossover from the limit cycle's period (twice the counted swings' mean
-    half-period)."""
+    half-period, at least the identified model's, ``C_MODEL_HALF``: a commissioned law's
+    cycle can be its own predictor's, faster than the loop's, a 0.09 s half-period on a loop
+    whose model said 0.33 s), and its ceiling."""
     cs[CS_O_ALARM] = 1.0
     cs[CS_O_ALARMS] += 1.0
     reaction = int(cp[C_OSC_REACTION])
@@ -329,9 +363,11 @@ def _alarm(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
     mean = cs[CS_O_CSUM] / cs[CS_O_CTIME]
     cs[CS_O_HOLD] = clip(cp, 100.0 if reaction == PROGRAMMED_FEED else mean)
     cs[CS_O_WAIT] = 0.0
-    cs[CS_O_HALF] = cs[CS_O_HALVES] / cs[CS_O_COUNT]
+    cs[CS_O_HALF] = pymax(cs[CS_O_HALVES] / cs[CS_O_COUNT], cp[C_MODEL_HALF])
     period = 2.0 * cs[CS_O_HALF]
     cs[CS_O_CROSSOVER] = 2.0 * math.pi / (period * DETUNE_RATIO)
+    cs[CS_O_TOP] = 2.0 * math.pi / (period * FASTEST_RATIO)
+    cs[CS_O_AGE] = 0.0
     cs[CS_O_TAIL] = -1.0
     cs[CS_O_LOG_FORCE] = _log_share(cp, error)
     cs[CS_O_FF_PHASE], cs[CS_O_FF_TIME], cs[CS_O_FF_SHARE] = FF_WATCH, 0.0, 0.0
@@ -355,6 +391,7 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
         cs[CS_O_HSUM], cs[CS_O_CSUM], cs[CS_O_CTIME] = 0.0, 0.0, 0.0
         return
     h = OSC_HYSTERESIS * cp[C_OSC_SWING]
+    cs[CS_O_AGE] += cp[C_PERIOD]
     rising = cs[CS_O_DIR] > 0.0
     cs[CS_O_SINCE] += cp[C_PERIOD]
     if (rising and error > cs[CS_O_EXT]) or (not rising and error < cs[CS_O_EXT]):
@@ -365,9 +402,28 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
     if cs[CS_O_COUNT] >= cp[C_OSC_COUNT]:
         if cs[CS_O_ALARM] == 0.0:
             _alarm(cp, cs, error)
-        else:   # the reaction's loop cycles too: its crossover halved
-            cs[CS_O_CROSSOVER] *= 0.5
+        else:
+            _recycle(cp, cs)
         cs[CS_O_COUNT] = 0.0   # watched afresh (the swings that raised the alarm count once)
+
+
+@compiled
+def _recycle(cp: np.ndarray, cs: np.ndarray) -> None:
+    """The detune reaction's own loop cycles (the detector counted ``oscillation_swings``
+    swings under it): its crossover halved. Where that cycle is slower than
+    REACTION_HALF_RATIO times the alarmed one, the alarmed cycle was not the loop's: the
+    crossover at most the reaction's cycle's frequency over RECYCLE_RATIO, that cycle's
+    half-period over RECYCLE_RATIO the alarmed one's from now on (the ceiling of
+    :func:`_quicken` with it), the level from the reaction's cycle's mean."""
+    if int(cp[C_OSC_REACTION]) != DETUNE:
+        return
+    half = cs[CS_O_HALVES] / cs[CS_O_COUNT]
+    cs[CS_O_CROSSOVER] *= 0.5
+    if half > REACTION_HALF_RATIO * cs[CS_O_HALF]:
+        cs[CS_O_CROSSOVER] = pymin(cs[CS_O_CROSSOVER], math.pi / (RECYCLE_RATIO * half))
+        cs[CS_O_HALF] = pymax(cs[CS_O_HALF], half / RECYCLE_RATIO)
+        cs[CS_O_TOP] = pymin(cs[CS_O_TOP], math.pi / (FASTEST_RATIO * cs[CS_O_HALF]))
+        cs[CS_O_HOLD] = clip(cp, cs[CS_O_CSUM] / cs[CS_O_CTIME])
 
 
 @compiled
@@ -395,7 +451,7 @@ def _quicken(cp: np.ndarray, cs: np.ndarray, share: float) -> None:
             if rate < TAIL_RATE_PER_S:
                 cs[CS_O_CROSSOVER] = pymax(cs[CS_O_CROSSOVER], pymin(
                     cs[CS_O_CROSSOVER] * TAIL_RATE_PER_S / rate,
-                    math.pi / (cs[CS_O_HALF] * FASTEST_RATIO)))
+                    cs[CS_O_TOP]))
             cs[CS_O_TAIL] = -1.0
 
 
