@@ -408,3 +408,23 @@ def test_the_re_zero_takes_the_cut_forces_tail_off_what_it_reads_as_friction():
     assert np.mean(static_errors) < -1.5
     assert slow.friction_scale == pytest.approx(1.0, abs=0.01)
     assert abs(np.mean(slow_errors)) < 1.0
+
+
+@pytest.mark.parametrize('drift', [1.25, 0.8])
+def test_a_friction_drift_is_read_through_the_cut_forces_tail(drift):
+    # The drift lifts (or lowers) the estimate in air as the tail decays: the re-zero tells
+    # them apart by where the estimate crossed rezero_below_n and where it is as the re-zero
+    # starts (estimator._tail_at_start), and reads the drift, not the tail. A 2 mm cut left
+    # at 2 s on chips with tau_c 0.19 s, 2 s of air: the estimate (24 N of 25 % more
+    # friction at the 30 % feed) falls under 40 N some 0.8 s after the exit, the re-zero
+    # reads for 0.9 s from 0.3 s later: 1 - exp(-0.9 / 0.3) = 95 % of the way, 1.5 % of the
+    # scale short of a 25 % drift (0.02 allows it and the 0.3 % of noise).
+    defaults = PlantSettings()
+    plant = PlantSettings(cutting_time_constant_s=0.19, depth_times_s=(0.0, 2.0, 4.0),
+                          depth_mm=(2.0, 0.0, 2.0),
+                          friction_at_min_feed_a=drift * defaults.friction_at_min_feed_a,
+                          friction_at_max_feed_a=drift * defaults.friction_at_max_feed_a)
+    estimator = ForceEstimator(EstimatorSettings(model_cutting_time_constant_s=0.19))
+    for block in blocks_of(plant, [100.0] * 200 + [30.0] * 200 + [100.0] * 100):
+        estimator.update(block.currents)
+    assert estimator.friction_scale == pytest.approx(drift, abs=0.02)
