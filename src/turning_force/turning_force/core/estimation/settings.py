@@ -96,6 +96,11 @@ class EstimatorSettings(FeedDriveSettings):
                                     'air move has re-zeroed the friction for this long (a '
                                     'program without one: friction that drifts goes unseen); '
                                     '0: no warning', 's', low=0.0, high=86400.0)
+    model_cutting_time_constant_s: float = setting(
+        0.05, "Friction re-zero: the cutting force's time constant tau_c (Park Eq. 1; identify "
+        'writes the identified one): the re-zero takes the tail of the force the tool left, '
+        'decaying with it from rezero_below_n, off what it reads as friction in air; 0: a '
+        'static process, no tail', 's', low=0.0, high=10.0, cite='Park 1998, Eq. 1')
     rezero_fall_fraction: float = setting(0.25, 'Friction re-zero: an estimate that has '
                                           'fallen below this fraction of the cut it left (its '
                                           'mean over the last seconds) and stays within '
