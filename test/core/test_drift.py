@@ -236,14 +236,16 @@ def test_lag_drifts_are_named_on_a_taper() -> None:
     assert not unchanged.trace['drift_alarm'].any(), unchanged.drift
 
 
-def test_a_depth_step_restarts_the_window() -> None:
+def test_a_depth_step_starts_a_segment_of_the_window() -> None:
     # bench_drift.py --seed 37, #4: 145 ms of PMC dead time and a 0.28 s servo on the 'long'
     # job (1.5 mm, then 2.5 mm from 3 s, and on). With 72 ms more dead time the loop cycles;
     # by 3 s the bank's +80 ms member left a thirtieth of the identified model's residual, a
     # statistic of 17 against 16. The step to 2.5 mm, which no member follows, put the same
     # residual on every member of a window fitted with one gain: the statistic fell to 1, and
-    # no drift was named in 24 s. The step now restarts the window (drift.STEP_SIGMAS): named
-    # at 4.9 s of cutting (the same on a CPU without AVX-512), within a step of the bank.
+    # no drift was named in 24 s. The step now ends a segment (drift.STEP_SIGMAS), each
+    # segment fitted with its own gain and the members compared over all of them: named at
+    # 3.9 s of cutting (4.9 s where the step restarted the window, the evidence before it
+    # lost), within a step of the bank.
     machine, sets = generated(37, 4)
     assert machine.job == 'long'
     longer = {'pmc_dead_time_s': 1.5 * machine.plant['pmc_dead_time_s']}
@@ -256,6 +258,40 @@ def test_a_depth_step_restarts_the_window() -> None:
         0.5 * machine.plant['pmc_dead_time_s'], abs=0.01), result.drift
     unchanged = simulate(population.job_experiment(machine).with_sets(sets))
     assert not unchanged.trace['drift_alarm'].any(), unchanged.drift
+
+
+def stepped_force(step_n: float) -> np.ndarray:
+    """The monitor's state on a cut whose force, the identified model's to a 2 N noise under
+    an override swept slowly (80 to 100 %, 2 s a period), steps by ``step_n`` once the window
+    is full (a depth step, the tool leaving the work) for STEP_PERIODS control periods."""
+    settings = ControllerSettings(drift_monitor=True, drift_ksd_min_n_mm=4000.0,
+                                  drift_ksd_max_n_mm=4000.0, drift_friction_n=90.0,
+                                  drift_friction_std=0.01, drift_ksd_std=0.01)
+    dp = drift.drift_fill(settings)
+    ds = np.zeros(drift.STATE)
+    noise = np.random.default_rng(7).normal(0.0, 2.0, 400)
+    y = drift.DS_MODELS + drift.Y   # the identified member's output
+    for k in range(300 + drift.STEP_PERIODS):
+        drift.drift_applied(ds, 90.0 + 10.0 * math.sin(math.pi * k * 0.01))
+        force = 500.0 * ds[y] + noise[k] + (step_n if k >= 300 else 0.0)
+        drift.drift_step(dp, ds, force, True, math.nan)
+        if k == 299:
+            assert ds[drift.DS_IN_CUT] > 2.0 and ds[drift.DS_S1] > 90.0   # the window full
+    return ds
+
+
+@pytest.mark.parametrize('drop_n', [200.0, -200.0])
+def test_a_step_of_the_force_either_way_ends_the_segment(drop_n: float) -> None:
+    # A force 200 N lower (or higher) at one feed: 100 sigmas of the 2 N noise, which no
+    # member follows. STEP_PERIODS of it end the segment, its samples out of the sums; the
+    # next starts after the process's transient. The earlier segment's fits stay in the
+    # window (CARRY): the identified member's, fitted to noise alone, 2 N squared over a
+    # window's weight of about 95 samples less the 5 dropped (chi-square with 90 degrees of
+    # freedom: within 30 % at 2 sigmas).
+    ds = stepped_force(drop_n)
+    assert ds[drift.DS_IN_CUT] == 0.0 and ds[drift.DS_S1] == 0.0 and ds[drift.DS_STEP] == 0.0
+    carried = ds[drift.DS_MODELS + drift.CARRY]
+    assert carried == pytest.approx(4.0 * ds[drift.DS_COUNT], rel=0.3)
 
 
 def test_a_friction_drift_is_named_at_the_jobs_start_without_an_air_move() -> None:

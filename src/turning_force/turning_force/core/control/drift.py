@@ -11,12 +11,15 @@ Eq. 1 with Kienzle's exponent, Hwang & Chen Eq. 3), of the feed ``v`` its servo 
 (Park Eq. 2 or Hwang & Chen Eq. 1, zero-order hold at the control period). Over an
 exponentially weighted window of ``drift_memory_s`` in the cut (from the time the model's
 entry transient has died away), each member's force is fitted as ``F = K y + c`` by least
-squares. Three tests follow, each a likelihood ratio on the residual's sum of squares, its
-effective sample count taken from the residual's lag-one autocorrelation ``rho`` (Bartlett:
-``n_eff = n (1 - rho) / (1 + rho)``; ``rho`` at most :data:`RHO_MAX`, the estimate's own
-noise: what the best member leaves more correlated than that is slow misfit), against
-``drift_sigmas`` squared (chi-square, one degree of freedom; Basseville & Nikiforov, Detection
-of Abrupt Changes, 1993, Sec. 4.2 and 7.2):
+squares, on each segment of the window by itself: an entry, a step in the force that no
+member follows (a depth step, :func:`_stepped`) or a correction of the estimate starts a
+segment, and the lag test sums each member's residual over the window's segments
+(:func:`_segment`). Three tests follow, each a likelihood ratio on the residual's sum of
+squares, its effective sample count taken from the residual's lag-one autocorrelation
+``rho`` (Bartlett: ``n_eff = n (1 - rho) / (1 + rho)``; ``rho`` at most :data:`RHO_MAX`,
+the estimate's own noise: what the best member leaves more correlated than that is slow
+misfit), against ``drift_sigmas`` squared (chi-square, one degree of freedom; Basseville &
+Nikiforov, Detection of Abrupt Changes, 1993, Sec. 4.2 and 7.2):
 
 - the lag: the best member of the bank against the identified one (PMC dead time or servo),
   each fitted with its gain ramping in the window, ``F = K y + R t y + c`` (a taper's depth
@@ -59,7 +62,7 @@ off its estimate (:func:`drift_correction`, the estimator's ``estimator_correct`
 move's re-zero would; ``drift_friction_correction`` says which readings: those the window tells
 from a gain (``decided``), or every one named (``named``: an undecided level that was a gain
 of a few percent holds the force that much above the reference until an air move re-zeroes
-the friction), or none. The window starts afresh after a correction, and a friction left over
+the friction), or none. A correction starts a segment of the window, and a friction left over
 is read and corrected a window later.
 """
 
@@ -122,13 +125,13 @@ RHO_MAX = 0.9
 # of 16.7 against 16): a dead time within drift_sigmas of that is none.
 DELAY_STD = 1.0 / math.sqrt(12.0)
 # A step in the force that no member follows (a depth step in the program, a harder part of
-# the bar: the process gain jumps) restarts the window, as an entry does: fitted with one gain
-# and a ramp, a window that straddles the step leaves the same residual on every member, and
-# the lag test loses what it had (a long job's 1.5 -> 2.5 mm step took a PMC dead time drift's
-# statistic from 17 to 1, bench_drift.py seed 37 #4). The step is the best member's residual
-# beyond STEP_SIGMAS of the window's root mean square for STEP_PERIODS control periods in a
-# row, with one sign: the estimate's noise, correlated up to RHO_MAX from one period to the
-# next, stays within 6 sigmas for 5 periods but once in 1e8.
+# the bar: the process gain jumps) starts a segment of the window, as an entry does: fitted
+# with one gain and a ramp, a window that straddles the step leaves the same residual on every
+# member, and the lag test loses what it had (a long job's 1.5 -> 2.5 mm step took a PMC dead
+# time drift's statistic from 17 to 1, bench_drift.py seed 37 #4). The step is the best
+# member's residual beyond STEP_SIGMAS of the window's root mean square for STEP_PERIODS
+# control periods in a row, with one sign: the estimate's noise, correlated up to RHO_MAX from
+# one period to the next, stays within 6 sigmas for 5 periods but once in 1e8.
 STEP_SIGMAS = 6.0
 STEP_PERIODS = 5
 
@@ -152,20 +155,25 @@ PARAMS = D_MODELS + N_MODELS * M_FIELDS
 # (REZ_*) and the scale it read last, the friction the estimator is to take off its
 # estimate [N] (drift_correction: 0 none asked), and for how many periods in a row the best
 # member's residual has stood beyond STEP_SIGMAS (signed: its sign) of the window's mean
-# square before.
+# square before, the window's weight over all its segments (the segment's is DS_S1), and that
+# weight where the step's run began.
 (DS_APPLIED, DS_AT, DS_STARTED, DS_IN_CUT, DS_S1, DS_SF, DS_SFF, DS_CAUSE, DS_SIZE,
  DS_SINCE, DS_ALARM, DS_ALARM_SIZE, DS_ALARM_STD, DS_ALARMS, DS_ALARM_ALT,
- DS_CUT_S, DS_LAPSE, DS_REZEROED, DS_SCALE, DS_CORRECT, DS_STEP, DS_STEP_MS) = range(22)
-DS_HIST = 22
+ DS_CUT_S, DS_LAPSE, DS_REZEROED, DS_SCALE, DS_CORRECT, DS_STEP, DS_STEP_MS, DS_COUNT,
+ DS_COUNT_RUN) = range(24)
+DS_HIST = 24
 # The re-zero: none yet, reading (its scale converging through the air move), a control
 # period without a reading (over once a second one passes), read (the last reading stands).
 REZ_NONE, REZ_READING, REZ_PAUSED, REZ_READ = range(4)
 DS_MODELS = DS_HIST + HISTORY
-# per member: servo state z0 z1, output y, sums y, y^2, y F, and of its residual: squared,
-# times the one before, the one before; sums of u = t y (t the time in the cut), u^2, u y, u F;
-# its fit's residual sum of squares this period (_fit)
-Z0, Z1, Y, SY, SYY, SYF, SRR, SR1, RPREV, SU, SUU, SUY, SUF, SSE = range(14)
-S_FIELDS = 14
+# per member: servo state z0 z1, output y, the segment's sums y, y^2, y F, and of its
+# residual over the window: squared, times the one before, the one before; the segment's sums
+# of u = t y (t the time in the segment), u^2, u y, u F; its fit's residual sum of squares this
+# period (_fit); the window's earlier segments' (each fitted on its own, decayed since); and
+# where a step's run began (_stepped): the segment's, the residual's squared and lag-one sums.
+(Z0, Z1, Y, SY, SYY, SYF, SRR, SR1, RPREV, SU, SUU, SUY, SUF, SSE, CARRY, RUN_SSE, RUN_RR,
+ RUN_R1) = range(18)
+S_FIELDS = 18
 STATE = DS_MODELS + N_MODELS * S_FIELDS
 
 
@@ -340,14 +348,31 @@ def _advance(dp: np.ndarray, ds: np.ndarray, ratio: float) -> None:
 
 
 @compiled
-def _forget(ds: np.ndarray) -> None:
-    """Out of the cut: the window starts afresh at the next entry. The alarm holds, and so
-    does a cause standing: its time counts in the cut, and an air move pauses it (the next
-    cut's window finds it again, or another cause, which starts afresh)."""
+def _segment(ds: np.ndarray) -> None:
+    """The segment ends (the tool left the cut, a step in the force, a correction of the
+    estimate): each member's fit of it stays in the window as its residual sum of squares
+    (CARRY, decaying with the window's weight as the cut goes on), and the next segment, from
+    the process's transient on (D_SETTLE), is fitted with its own gain, ramp and offset. The
+    lag test compares the members over every segment in the window (a long job's depth steps,
+    an interrupted cut's entries); the level test reads the segment (one depth, one
+    friction). The alarm holds, and so does a cause standing: its time counts in the cut,
+    and an air move pauses it."""
     ds[DS_IN_CUT], ds[DS_S1], ds[DS_SF], ds[DS_SFF] = 0.0, 0.0, 0.0, 0.0
     for m in range(N_MODELS):
         at = DS_MODELS + m * S_FIELDS
-        ds[at + SY:at + S_FIELDS] = 0.0
+        if math.isfinite(ds[at + SSE]):
+            ds[at + CARRY] += ds[at + SSE]
+        ds[at + SY:at + SRR] = 0.0
+        ds[at + RPREV:at + CARRY] = 0.0
+
+
+@compiled
+def _window_sse(ds: np.ndarray, m: int) -> float:
+    """Member m's residual sum of squares over the window: its segments' fits."""
+    at = DS_MODELS + m * S_FIELDS
+    sse: float = ds[at + SSE]
+    carried: float = ds[at + CARRY]
+    return carried + (sse if math.isfinite(sse) else 0.0)
 
 
 @compiled
@@ -359,16 +384,32 @@ def _stepped(ds: np.ndarray, m: int, sse: float) -> bool:
     residual = ds[DS_MODELS + m * S_FIELDS + RPREV]
     run = ds[DS_STEP]
     if run == 0.0:
-        ds[DS_STEP_MS] = sse / ds[DS_S1]
+        ds[DS_STEP_MS] = sse / ds[DS_COUNT]
     if not residual * residual > STEP_SIGMAS * STEP_SIGMAS * ds[DS_STEP_MS]:
         ds[DS_STEP] = 0.0
         return False
-    run = run + 1.0 if run * residual > 0.0 else math.copysign(1.0, residual)
+    sign = math.copysign(1.0, residual)
+    run = run + sign if run * residual > 0.0 else sign
     ds[DS_STEP] = run
     if abs(run) < STEP_PERIODS:
         return False
     ds[DS_STEP] = 0.0
     return True
+
+
+@compiled
+def _unstep(ds: np.ndarray, lam: float, periods: float) -> None:
+    """A step's run of ``periods`` is over (or the tool left the cut in one): the segment
+    ends where the run began, the run's own samples (the force stepping, which no member
+    follows) out of every sum (decayed since)."""
+    ds[DS_STEP] = 0.0
+    decay = lam ** periods
+    ds[DS_COUNT] = ds[DS_COUNT_RUN] * decay
+    for m in range(N_MODELS):
+        at = DS_MODELS + m * S_FIELDS
+        ds[at + SSE] = ds[at + RUN_SSE] * decay
+        ds[at + SRR], ds[at + SR1] = ds[at + RUN_RR] * decay, ds[at + RUN_R1] * decay
+    _segment(ds)
 
 
 @compiled
@@ -399,13 +440,12 @@ def _fit(ds: np.ndarray, m: int) -> tuple[float, float, float, float]:
 
 
 @compiled
-def _effective(ds: np.ndarray, m: int) -> float:
-    """The window's effective count of independent samples under member m: its residual's
+def _effective(ds: np.ndarray, m: int, count: float) -> float:
+    """The effective count of independent samples of ``count`` under member m: its residual's
     lag-one autocorrelation rho, n (1 - rho) / (1 + rho) (Bartlett)."""
     at = DS_MODELS + m * S_FIELDS
     squares: float = ds[at + SRR]
     rho = pymin(pymax(ds[at + SR1] / squares, 0.0), RHO_MAX) if squares > 0.0 else 0.0
-    count: float = ds[DS_S1]
     return count * (1.0 - rho) / (1.0 + rho)
 
 
@@ -499,7 +539,9 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
         return
     _advance(dp, ds, applied / 100.0)
     if not (engaged and math.isfinite(force)):
-        _forget(ds)
+        if ds[DS_STEP] != 0.0:   # the force fell out of the window's fit as the tool left
+            _unstep(ds, dp[D_FORGET], abs(ds[DS_STEP]))
+        _segment(ds)
         return
     h = dp[D_PERIOD]
     ds[DS_IN_CUT] += h
@@ -507,12 +549,20 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
     if ds[DS_IN_CUT] < dp[D_SETTLE]:
         return
     lam = dp[D_FORGET]
+    running = ds[DS_STEP] != 0.0
+    if not running:
+        ds[DS_COUNT_RUN] = ds[DS_COUNT]
+    ds[DS_COUNT] = lam * ds[DS_COUNT] + 1.0
     ds[DS_S1] = lam * ds[DS_S1] + 1.0
     ds[DS_SF] = lam * ds[DS_SF] + force
     ds[DS_SFF] = lam * ds[DS_SFF] + force * force
     s1, t = ds[DS_S1], ds[DS_IN_CUT]
     for m in range(N_MODELS):
         at = DS_MODELS + m * S_FIELDS
+        if not running:   # where a step's run would begin (_stepped)
+            ds[at + RUN_SSE], ds[at + RUN_RR], ds[at + RUN_R1] = (
+                ds[at + SSE], ds[at + SRR], ds[at + SR1])
+        ds[at + CARRY] *= lam
         y = ds[at + Y]
         u = t * y
         ds[at + SY] = lam * ds[at + SY] + y
@@ -529,21 +579,23 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
         ds[at + SRR] = lam * ds[at + SRR] + residual * residual
         ds[at + SR1] = lam * ds[at + SR1] + residual * ds[at + RPREV]
         ds[at + RPREV] = residual
-    if s1 < (1.0 - math.exp(-1.0)) / (1.0 - lam):   # a window's worth of the cut, first
+    full = (1.0 - math.exp(-1.0)) / (1.0 - lam)   # a window's worth of the cut
+    if ds[DS_COUNT] < full:
         return
     threshold = dp[D_SIGMAS] * dp[D_SIGMAS]
-    sse0 = ds[DS_MODELS + SSE]
+    sse0 = _window_sse(ds, 0)
     best, best_sse = 0, sse0
     for m in range(1, N_MODELS):
         if _eligible(dp, m):
-            sse = ds[DS_MODELS + m * S_FIELDS + SSE]
+            sse = _window_sse(ds, m)
             if sse < best_sse:
                 best, best_sse = m, sse
     if _stepped(ds, best, best_sse):
-        _forget(ds)
+        _unstep(ds, lam, STEP_PERIODS)
         return
     cause, size, std, alt = NONE, 0.0, 0.0, 0.0
-    if best != 0 and _effective(ds, best) * math.log(sse0 / best_sse) > threshold:
+    if best != 0 and (_effective(ds, best, ds[DS_COUNT]) * math.log(sse0 / best_sse)
+                      > threshold):
         row = D_MODELS + best * M_FIELDS
         cause, size = int(dp[row + M_CAUSE]), dp[row + M_SIZE]
         # half the bank's step either way
@@ -552,7 +604,9 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
         # on the identified member: no lag drift found
         # the job's start, where the depth is known, or anywhere in the job's depths
         start = ds[DS_CUT_S] <= dp[D_FIRST_S]
-        level = _level(dp, ds, 0, _effective(ds, 0),
+        if s1 < full:   # the segment's level: once it holds a window's worth
+            return
+        level = _level(dp, ds, 0, _effective(ds, 0, s1),
                        dp[D_K_FIRST_LO] if start else dp[D_K_LO],
                        dp[D_K_FIRST_HI] if start else dp[D_K_HI])
         if level[0] != NONE and level[3] > threshold:
@@ -593,12 +647,12 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
 def _correct(dp: np.ndarray, ds: np.ndarray, size: float) -> None:
     """The friction read in the cut, ``size`` of the identified friction's share of the force
     more than the estimator subtracts: the estimator is to take that off its estimate
-    (:func:`drift_correction`), as an air move's re-zero would. The window saw the estimate
-    before it: it starts afresh (after the process's transient, D_SETTLE), and the cause
-    standing with it; the alarm holds. A friction left over (the window's feed is not the
+    (:func:`drift_correction`), as an air move's re-zero would. The segment saw the estimate
+    before it: another starts (after the process's transient, D_SETTLE), and the cause
+    standing starts afresh; the alarm holds. A friction left over (the window's feed is not the
     cut's next one) is read and corrected again a window later."""
     ds[DS_CORRECT] += size * dp[D_FRICTION]
-    _forget(ds)
+    _segment(ds)
     ds[DS_SINCE] = 0.0
 
 
