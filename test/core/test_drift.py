@@ -211,6 +211,28 @@ def test_a_servo_drift_is_named_where_what_the_bank_leaves_is_slow() -> None:
     assert not unchanged.trace['drift_alarm'].any(), unchanged.drift
 
 
+def test_a_servo_drift_is_read_in_the_process_lags_transient() -> None:
+    # bench_drift.py --seed 16, #2: a 0.34 s servo behind 102 ms of PMC dead time, and a slow
+    # process (tau_c 0.164 s) on the 'long' job (a depth step every 3 s). The override moves
+    # most in the second after an entry or a step, while the force still rises with tau_c.
+    # Waiting five tau_c for that transient to die away (0.82 s of each 3 s segment) left the
+    # bank the quiet part: the x1.73 member at 60 % of the identified one's residual, a
+    # statistic of 11 to 15 against 16, named at 11 s (never, where each step emptied the
+    # window). The transient's shape is known, the process lag's free decay exp(-t / tau_c):
+    # fitted with it, the window starts a tau_c after the entry and holds the loop's moves.
+    machine, sets = generated(16, 2)
+    assert machine.job == 'long' and machine.plant['cutting_time_constant_s'] > 0.15
+    slower = {'servo_time_constant_s': 1.8 * machine.plant['servo_time_constant_s']}
+    result = simulate(population.job_experiment(replace(machine, drifted=slower)).with_sets(sets))
+    named = result.trace['drift_alarm']
+    assert CAUSES[int(named[np.flatnonzero(named)[0]])] == 'servo', result.drift
+    assert result.metrics['drift_alarm_s'] <= 5.0
+    # the bank's time scales are x1.2 apart: the reading is within one step
+    assert result.trace['drift_size'][-1] == pytest.approx(1.8, abs=1.8 * 0.2), result.drift
+    unchanged = simulate(population.job_experiment(machine).with_sets(sets))
+    assert not unchanged.trace['drift_alarm'].any(), unchanged.drift
+
+
 def test_lag_drifts_are_named_on_a_taper() -> None:
     # bench_drift.py --seed 29, #0 (78 ms of dead time, a 0.16 s servo) on the 'taper' job: 1
     # to 2.5 mm over 12 s, its K_s d 12 % a second higher at the start. Fitted with one gain
@@ -244,7 +266,7 @@ def test_a_depth_step_starts_a_segment_of_the_window() -> None:
     # residual on every member of a window fitted with one gain: the statistic fell to 1, and
     # no drift was named in 24 s. The step now ends a segment (drift.STEP_SIGMAS), each
     # segment fitted with its own gain and the members compared over all of them: named at
-    # 3.9 s of cutting (4.9 s where the step restarted the window, the evidence before it
+    # 3.2 s of cutting (4.9 s where the step restarted the window, the evidence before it
     # lost), within a step of the bank.
     machine, sets = generated(37, 4)
     assert machine.job == 'long'
@@ -317,7 +339,7 @@ def test_a_friction_drift_is_named_at_the_jobs_start_without_an_air_move() -> No
         # read through the identified gain at 1 mm: the model's error on the force (0.8 % of
         # 480 N) is 4.2 % of the friction, two of them
         assert result.trace['drift_size'][first] == pytest.approx(0.25, abs=0.09)
-        # nothing else named: the 3.5 mm step restarts the window (drift.STEP_SIGMAS), and
+        # nothing else named: the 3.5 mm step ends a segment (drift.STEP_SIGMAS), and
         # the window at 3.5 mm and 14 % override, where the loop cycles and the member a
         # control period longer fits the estimate better on this machine unchanged too, names
         # no dead time (drift.DELAY_STD; it named +10 ms at 9.7 s)
@@ -327,13 +349,6 @@ def test_a_friction_drift_is_named_at_the_jobs_start_without_an_air_move() -> No
     assert int(found.group(1)) == pytest.approx(25, abs=9)
     # the same level as a gain: 22 N of some 480 N
     assert int(found.group(2)) == pytest.approx(4.6, abs=1.5)
-    # With the correction: at 3.5 mm and a feed far from the start's the window tells the
-    # friction from a gain, and the estimator takes it off: 22 N of bias left without, less
-    # than the model's error on the force at 3.5 mm (0.8 % of the job's 480 N) two times over
-    # with it
-    assert corrected.drift.startswith('friction +') and ' or ' not in corrected.drift
-    assert estimate_bias_n(alone, 7.0) == pytest.approx(22.0, abs=4.0)
-    assert abs(estimate_bias_n(corrected, 7.0)) < 8.0
     unchanged = simulate(population.job_experiment(machine).with_sets(sets))
     assert not unchanged.trace['drift_alarm'].any(), unchanged.drift
 
