@@ -189,6 +189,22 @@ def generated(seed: int, index: int, job: str = '') -> tuple[population.Machine,
     return machine, identified + monitor
 
 
+def assert_servo_drift_named(machine: population.Machine, sets: list[str]) -> None:
+    """The machine's servo slowed x1.8 is named within 5 s, and nothing on it as it was."""
+    p = machine.plant
+    slower = ({'servo_time_constant_s': 1.8 * p['servo_time_constant_s']}
+              if p['servo_model'] == 'first_order'
+              else {'servo_natural_freq_rad_s': p['servo_natural_freq_rad_s'] / 1.8})
+    result = simulate(population.job_experiment(replace(machine, drifted=slower)).with_sets(sets))
+    named = result.trace['drift_alarm']
+    assert CAUSES[int(named[np.flatnonzero(named)[0]])] == 'servo', result.drift
+    assert result.metrics['drift_alarm_s'] <= 5.0
+    # the bank's time scales are x1.2 apart: the reading is within one step
+    assert result.trace['drift_size'][-1] == pytest.approx(1.8, abs=1.8 * 0.2), result.drift
+    unchanged = simulate(population.job_experiment(machine).with_sets(sets))
+    assert not unchanged.trace['drift_alarm'].any(), unchanged.drift
+
+
 def test_a_servo_drift_is_named_where_what_the_bank_leaves_is_slow() -> None:
     # bench_drift.py --seed 16, #1: a second-order servo (10.2 rad/s) behind 144 ms of PMC dead
     # time, on the 'long' job. Slowed x1.8, the bank's member x1.73 leaves a hundredth to a
@@ -200,15 +216,7 @@ def test_a_servo_drift_is_named_where_what_the_bank_leaves_is_slow() -> None:
     # twentieth, of the residual is a lag drift.
     machine, sets = generated(16, 1)
     assert machine.plant['servo_model'] == 'second_order'
-    slower = {'servo_natural_freq_rad_s': machine.plant['servo_natural_freq_rad_s'] / 1.8}
-    result = simulate(population.job_experiment(replace(machine, drifted=slower)).with_sets(sets))
-    named = result.trace['drift_alarm']
-    assert CAUSES[int(named[np.flatnonzero(named)[0]])] == 'servo', result.drift
-    assert result.metrics['drift_alarm_s'] <= 5.0
-    # the bank's time scales are x1.2 apart: the reading is within one step
-    assert result.trace['drift_size'][-1] == pytest.approx(1.8, abs=1.8 * 0.2), result.drift
-    unchanged = simulate(population.job_experiment(machine).with_sets(sets))
-    assert not unchanged.trace['drift_alarm'].any(), unchanged.drift
+    assert_servo_drift_named(machine, sets)
 
 
 def test_a_servo_drift_is_read_in_the_process_lags_transient() -> None:
@@ -222,15 +230,7 @@ def test_a_servo_drift_is_read_in_the_process_lags_transient() -> None:
     # fitted with it, the window starts a tau_c after the entry and holds the loop's moves.
     machine, sets = generated(16, 2)
     assert machine.job == 'long' and machine.plant['cutting_time_constant_s'] > 0.15
-    slower = {'servo_time_constant_s': 1.8 * machine.plant['servo_time_constant_s']}
-    result = simulate(population.job_experiment(replace(machine, drifted=slower)).with_sets(sets))
-    named = result.trace['drift_alarm']
-    assert CAUSES[int(named[np.flatnonzero(named)[0]])] == 'servo', result.drift
-    assert result.metrics['drift_alarm_s'] <= 5.0
-    # the bank's time scales are x1.2 apart: the reading is within one step
-    assert result.trace['drift_size'][-1] == pytest.approx(1.8, abs=1.8 * 0.2), result.drift
-    unchanged = simulate(population.job_experiment(machine).with_sets(sets))
-    assert not unchanged.trace['drift_alarm'].any(), unchanged.drift
+    assert_servo_drift_named(machine, sets)
 
 
 def test_lag_drifts_are_named_on_a_taper() -> None:
