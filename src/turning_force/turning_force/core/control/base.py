@@ -149,7 +149,9 @@ class Controller:
     @property
     def drift(self) -> str:
         """The drift alarm in words (:func:`.drift.drift_text`; '' while none holds)."""
-        return drift.drift_text(self.settings, *drift.alarm(self._state[CS_DRIFT:CS_LAW]))
+        monitor = self._state[CS_DRIFT:CS_LAW]
+        return drift.drift_text(self.settings, *drift.alarm(monitor),
+                                adopted=drift.adopted(monitor))
 
     def rezeroed(self, scale: float) -> None:
         """The estimator re-zeroed the friction in air to ``scale`` x calibrated (the drift

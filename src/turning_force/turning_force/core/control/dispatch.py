@@ -3,9 +3,10 @@ code's cache folder, and imported.
 
 numba calls a function it knows when it compiles the caller; it cannot keep a caller that takes
 a function as an argument in its cache. So the choice of law is a chain of ``if kind == ...``
-over every law's ``step``, ``reset``, ``finite`` and ``sent``, written here as source: one file
-per set of laws (the cache folder is named for them, :mod:`turning_force.core.codecache`), so
-that a law another package installs runs compiled like ours, and is cached like ours.
+over every law's ``step``, ``reset``, ``finite``, ``sent`` and ``adopt``, written here as
+source: one file per set of laws (the cache folder is named for them,
+:mod:`turning_force.core.codecache`), so that a law another package installs runs compiled
+like ours, and is cached like ours.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ _HOOKS = {
     'reset': ('cp, cs', None),
     'finite': ('cp, cs', 'True'),
     'sent': ('cp, cs, level', None),
+    'adopt': ('cp, cs, cause, size', 'False'),
 }
 
 

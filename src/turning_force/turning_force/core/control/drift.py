@@ -66,6 +66,13 @@ from a gain (``decided``), or every one named (``named``: an undecided level tha
 of a few percent holds the force that much above the reference until an air move re-zeroes
 the friction), or none. A correction starts a segment of the window, and a friction left over
 is read and corrected a window later.
+
+A lag drift (PMC dead time, servo) the monitor names is a member of its bank: where
+``drift_adopt_model`` is on, a law that predicts with the machine's model (the predictive law,
+:mod:`.laws.mpc`) takes that member's dead time and servo into its own model from the alarm
+on, until the tool changes (``update.controller_update`` calls the law's ``adopt``); the alarm
+says so (:func:`adopted`, :func:`drift_text`). The monitor itself goes on comparing the
+machine with the identified model.
 """
 
 from __future__ import annotations
@@ -85,7 +92,7 @@ if TYPE_CHECKING:
     from turning_force.core.identify import Identification
     from turning_force.core.plant.settings import DepthProfile
 
-__all__ = ['CAUSES', 'CORRECTIONS', 'PARAMS', 'STATE', 'alarm', 'drift_applied',
+__all__ = ['CAUSES', 'CORRECTIONS', 'PARAMS', 'STATE', 'adopted', 'alarm', 'drift_applied',
            'drift_correction', 'drift_fill', 'drift_rezeroed', 'drift_step', 'drift_text',
            'drift_tool', 'first_cut', 'identified', 'model_error']
 
@@ -150,8 +157,8 @@ STEP_PERIODS = 5
 # --- parameters (dp) ---------------------------------------------------------------------------
 (D_ON, D_PERIOD, D_FORGET, D_SIGMAS, D_POLE, D_EXPONENT, D_SETTLE, D_MEMORY, D_K_LO, D_K_HI,
  D_K_STD, D_FRICTION, D_FRICTION_STD, D_FRICTION_MAX, D_DEAD, D_DEAD_STD, D_SERVO_STD,
- D_FIRST_S, D_K_FIRST_LO, D_K_FIRST_HI, D_CORRECT, D_LAG_SETTLE) = range(22)
-D_MODELS = 22
+ D_FIRST_S, D_K_FIRST_LO, D_K_FIRST_HI, D_CORRECT, D_LAG_SETTLE, D_ADOPT) = range(23)
+D_MODELS = 23
 # per member: delay [periods], servo b0 b1 b2 a1 a2 (direct form II transposed), cause, size
 M_DELAY, M_B0, M_B1, M_B2, M_A1, M_A2, M_CAUSE, M_SIZE = range(8)
 M_FIELDS = 8
@@ -168,12 +175,14 @@ PARAMS = D_MODELS + N_MODELS * M_FIELDS
 # estimate [N] (drift_correction: 0 none asked), and for how many periods in a row the best
 # member's residual has stood beyond STEP_SIGMAS (signed: its sign) of the window's mean
 # square before, the window's weight over all its segments (the segment's is DS_S1), and that
-# weight where the step's run began.
+# weight where the step's run began; the lag drift (cause, size) the law took into its model
+# (drift_adopt_model: update.controller_update; 0: none).
 (DS_APPLIED, DS_AT, DS_STARTED, DS_IN_CUT, DS_S1, DS_SF, DS_SFF, DS_CAUSE, DS_SIZE,
  DS_SINCE, DS_ALARM, DS_ALARM_SIZE, DS_ALARM_STD, DS_ALARMS, DS_ALARM_ALT,
  DS_CUT_S, DS_LAPSE, DS_REZEROED, DS_SCALE, DS_CORRECT, DS_STEP, DS_STEP_MS, DS_COUNT,
- DS_COUNT_RUN, DS_SQ, DS_SQQ, DS_SQF, DS_L1, DS_LF, DS_LFF, DS_LY, DS_LYY, DS_LYF) = range(33)
-DS_HIST = 33
+ DS_COUNT_RUN, DS_SQ, DS_SQQ, DS_SQF, DS_L1, DS_LF, DS_LFF, DS_LY, DS_LYY, DS_LYF,
+ DS_ADOPTED, DS_ADOPTED_SIZE) = range(35)
+DS_HIST = 35
 # The re-zero: none yet, reading (its scale converging through the air move), a control
 # period without a reading (over once a second one passes), read (the last reading stands).
 REZ_NONE, REZ_READING, REZ_PAUSED, REZ_READ = range(4)
@@ -304,6 +313,7 @@ def drift_fill(c: ControllerBase) -> FloatArray:
     p[D_K_FIRST_LO] = c.drift_ksd_first_min_n_mm * feed
     p[D_K_FIRST_HI] = c.drift_ksd_first_max_n_mm * feed
     p[D_CORRECT] = CORRECTIONS.index(c.drift_friction_correction)
+    p[D_ADOPT] = c.drift_adopt_model
     members = [(0.0, 1.0, NONE, 0.0)]
     members += [(j * h, 1.0, DEAD_TIME, j * h) for j in DEAD_OFFSETS]
     members += [(0.0, SERVO_RATIO ** k, SERVO, SERVO_RATIO ** k) for k in SERVO_POWERS]
@@ -777,9 +787,18 @@ def alarm(ds: FloatArray) -> tuple[int, float, float, float]:
             float(ds[DS_ALARM_ALT]))
 
 
-def drift_text(c: ControllerBase, cause: int, size: float, std: float, alt: float = 0.0) -> str:
-    """The alarm in words: what drifted, identified and now, and what to do (``alt``: the
-    other reading of a level, where the cut cannot tell a gain from a friction drift)."""
+def adopted(ds: FloatArray) -> tuple[int, float]:
+    """The lag drift the law took into its model (``drift_adopt_model``): cause (NONE: none)
+    and size, as the alarm named them (:func:`drift_text` takes them)."""
+    return int(ds[DS_ADOPTED]), float(ds[DS_ADOPTED_SIZE])
+
+
+def drift_text(c: ControllerBase, cause: int, size: float, std: float, alt: float = 0.0,
+               adopted: tuple[int, float] = (NONE, 0.0)) -> str:
+    """The alarm in words: what drifted, identified and now, what the law did with it
+    (``adopted``: the lag drift it took into its model, :func:`adopted`) and what to do
+    (``alt``: the other reading of a level, where the cut cannot tell a gain from a friction
+    drift)."""
     if cause == DEAD_TIME:
         was = c.model_dead_time_s
         what = (f'PMC dead time {size * 1e3:+.0f} ms (identified {was * 1e3:.0f} ms, now '
@@ -796,4 +815,12 @@ def drift_text(c: ControllerBase, cause: int, size: float, std: float, alt: floa
                      're-zeroes the friction and tells)')
     else:
         return ''
+    taken, taken_size = adopted
+    if taken == DEAD_TIME:
+        what += (f'; the {c.controller} law predicts with '
+                 f'{(c.model_dead_time_s + taken_size) * 1e3:.0f} ms of dead time until the '
+                 'tool changes')
+    elif taken == SERVO:
+        what += (f'; the {c.controller} law predicts with the servo x{taken_size:.2f} until '
+                 'the tool changes')
     return f'{what}: re-commission (identify this session)'

@@ -16,7 +16,10 @@ names it under the ``turning_force.laws`` entry point group). It holds:
   ``out[OUT_ERR]`` and the sliding variable (0 if none) into ``out[OUT_S]``; ``reset(cp, cs)``
   the fresh state of a new cut from the held request ``cs[CS_HELD]``; optionally
   ``finite(cp, cs) -> bool`` (whether the state is fit to go on: the guard resets the law
-  otherwise) and ``sent(cp, cs, level)`` (the PMC level sent, once the quantiser chose it);
+  otherwise), ``sent(cp, cs, level)`` (the PMC level sent, once the quantiser chose it) and
+  ``adopt(cp, cs, cause, size) -> bool`` (the drift monitor named a lag drift, a member of its
+  bank, :mod:`.drift`: whether the law took it into its model; cause ``drift.NONE``: back to
+  the commissioned model, at a tool change, before ``reset``);
 - ``LAW = Law(name, Settings, fill, summary)`` (``closed_loop=False`` for a law that ignores
   the force: the oscillation alarm does not watch it).
 
@@ -312,6 +315,10 @@ class ControllerBase(Settings):
         'and feed, where a gain drift of a few percent would be taken for friction and the '
         'force held that much above the reference until an air move; none: it only says so)',
         choices=drift.CORRECTIONS)
+    drift_adopt_model: bool = setting(
+        True, 'Drift monitor: where it names a PMC dead time or servo drift, a law that '
+        "predicts with the machine's model (mpc) takes the named dead time and servo into its "
+        'own model from then on, until the tool changes; off: the alarm only says so')
 
     def check(self) -> None:
         super().check()
@@ -345,8 +352,8 @@ class ControllerBase(Settings):
 class Law:
     """A control law as the controller runs it: its name, its settings, how it reads them into
     its compiled parameters (``fill``), and a line that says what it is. Its compiled
-    functions are its module's ``step``, ``reset``, ``finite`` and ``sent`` (see the module's
-    text)."""
+    functions are its module's ``step``, ``reset``, ``finite``, ``sent`` and ``adopt`` (see
+    the module's text)."""
 
     name: str
     settings: type[ControllerBase]

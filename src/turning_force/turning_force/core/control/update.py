@@ -19,8 +19,15 @@ import numpy as np
 from turning_force.core.compiled import Arr, compiled, entry, pymax, pymin, quantise, table_row
 from turning_force.core.control import dispatch
 from turning_force.core.control.drift import (
+    D_ADOPT,
+    D_MEMORY,
+    DEAD_TIME,
+    DS_ADOPTED,
+    DS_ADOPTED_SIZE,
     DS_ALARM,
     DS_ALARM_SIZE,
+    NONE,
+    SERVO,
     drift_applied,
     drift_rezeroed,
     drift_step,
@@ -247,11 +254,21 @@ ENTRY_SHARE, ENTRY_FORCE_SHARE, ENTRY_RATE_PER_S, ENTRY_RAISE = 0.9, 0.1, 0.5, 2
 STEP_CALM, STEP_CALM_HALVES, STEP_RATE_PER_S = 0.1, 2.0, 1.5
 STEP_WINDOW_HALVES, STEP_LAG_HALVES, STEP_CALM_MEAN_S = 3.0, 1.0, 0.1
 FF_WATCH, FF_STEP = 0, 1
+# Where the law adopts the model of a lag drift the monitor named (drift_adopt_model), the loop
+# answers the switch as it would a kick: the old model's ring dies away over about the
+# monitor's window (drift_memory_s), which is how long the drift took to be named. Its swings
+# are the old loop's, not the new one's: the detector starts afresh and counts none for
+# ADOPT_SETTLE windows. Chained with a depth step's rise and return they made four (bench_drift
+# seed 29 #5, servo x1.8: a dying ring of 133 and 165 N 0.3 and 1.3 s after the switch, then a
+# 1 -> 2 mm step, alarmed at 5.04 s; the same loop on the drifted model from the start, no
+# alarm).
+ADOPT_SETTLE = 1.0
 # oscillation_reaction's index in law.OSCILLATION_REACTIONS
 DETUNE, HOLD_MEAN, PROGRAMMED_FEED, NO_REACTION = 0, 1, 2, 3
 
 _laws = dispatch.load()
 law_step, law_reset, law_finite, law_sent = _laws.step, _laws.reset, _laws.finite, _laws.sent
+law_adopt = _laws.adopt
 
 
 @compiled
@@ -308,7 +325,8 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     swing, half = abs(extreme - cs[CS_O_LAST]), cs[CS_O_SINCE]
     last, before = cs[CS_O_SWING], cs[CS_O_SWING_BEFORE]
     counts = swing >= cp[C_OSC_SWING] and OSC_HALF_MIN_S <= half <= OSC_HALF_MAX_S and (
-        cs[CS_O_ALARM] == 0.0 or cs[CS_O_AGE] >= SETTLE_HALVES * cs[CS_O_HALF])
+        cs[CS_O_AGE] >= 0.0 if cs[CS_O_ALARM] == 0.0
+        else cs[CS_O_AGE] >= SETTLE_HALVES * cs[CS_O_HALF])
     chains = True
     if cs[CS_O_ALARM] != 0.0 and cs[CS_O_COUNT] > 0.0:
         # under the reaction: a swing within REACTION_HALF_RATIO of the alarmed half-period
@@ -531,14 +549,27 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
                       rate: float, out: np.ndarray) -> None:
     """One control period: the law, the guard on its state, the error-feedback quantiser,
     the reachability flag, the oscillation alarm with its reaction and the drift monitor
-    (:mod:`.drift`, which sets no feed: it names drifts, and asks the estimator to take off a
-    friction drift it reads, :func:`.drift.drift_correction`); out = (pct, error, s,
+    (:mod:`.drift`, which sets no feed: it names drifts, asks the estimator to take off a
+    friction drift it reads, :func:`.drift.drift_correction`, and where ``drift_adopt_model``
+    is on hands a lag drift it names anew to the law's ``adopt``); out = (pct, error, s,
     reachable, oscillating, drift, drift's size)."""
     error = force - cp[C_REF]
     out[OUT_OSC] = cs[CS_O_ALARM]
     monitor = cs[CS_DRIFT:CS_LAW]
+    was, was_size = monitor[DS_ALARM], monitor[DS_ALARM_SIZE]
     drift_step(cp[C_DRIFT:C_LAW], monitor, force, cs[CS_ENGAGED] != 0.0, cs[CS_HELD])
-    out[OUT_DRIFT], out[OUT_DRIFT_SIZE] = monitor[DS_ALARM], monitor[DS_ALARM_SIZE]
+    cause, size = monitor[DS_ALARM], monitor[DS_ALARM_SIZE]
+    out[OUT_DRIFT], out[OUT_DRIFT_SIZE] = cause, size
+    if (cause != was or size != was_size) and int(cause) in (DEAD_TIME, SERVO) \
+            and cp[C_DRIFT + D_ADOPT] != 0.0 and law_adopt(int(cp[C_KIND]), cp, cs, int(cause),
+                                                           size):
+        # a lag drift named anew: the law predicts with that member of the bank from now on,
+        # another loop, whose swings the oscillation detector counts afresh once the switch's
+        # own transient is over (ADOPT_SETTLE)
+        monitor[DS_ADOPTED], monitor[DS_ADOPTED_SIZE] = cause, size
+        if cs[CS_O_ALARM] == 0.0:
+            cs[CS_O_DIR], cs[CS_O_COUNT] = 0.0, 0.0
+            cs[CS_O_AGE] = -ADOPT_SETTLE * cp[C_DRIFT + D_MEMORY]
     if not (math.isfinite(force) and math.isfinite(rate)):
         _recover(cp, cs, error, out)
         return
@@ -623,7 +654,8 @@ def controller_tool(tools: np.ndarray, cp: np.ndarray, cs: np.ndarray, number: f
     air: the law starts afresh from the request held, as at an entry (the anti-windup of
     :func:`controller_applied`), the quantiser's carry and the reachability clock cleared. The
     oscillation alarm ends: another tool is another loop, watched afresh; so does the drift
-    alarm (:func:`.drift.drift_tool`): the tool's own model is watched from its start."""
+    alarm (:func:`.drift.drift_tool`): the tool's own model is watched from its start, and
+    the law predicts with it (``adopt`` with no cause)."""
     row = table_row(tools, number)
     if row < 0:
         return row
@@ -634,6 +666,7 @@ def controller_tool(tools: np.ndarray, cp: np.ndarray, cs: np.ndarray, number: f
     cs[CS_CARRY], cs[CS_PINNED], cs[CS_SIDE] = 0.0, 0.0, 0.0
     cs[CS_O_ALARM], cs[CS_O_DIR], cs[CS_O_COUNT] = 0.0, 0.0, 0.0
     drift_tool(cs[CS_DRIFT:CS_LAW])
+    law_adopt(int(cp[C_KIND]), cp, cs, NONE, 0.0)   # the tool's commissioned model
     law_reset(int(cp[C_KIND]), cp, cs)
     return row
 

@@ -46,6 +46,14 @@ lead of 10 to 30 periods would carry it into every level.
 
 Being a model of the feed, not an integrator, the law holds no windup: with the tool out of the
 cut it asks for the level that would give the reference at the ``k`` last learned.
+
+A machine that drifted from the model (a slower servo, a longer PMC dead time) is predicted
+wrong, and the law then rings or limit-cycles. Where the drift monitor (:mod:`..drift`) names
+such a lag drift, a member of its bank, the law takes that member's dead time and servo into
+its model (:func:`adopt`) until the tool changes: the servo's ``phi`` and ``gamma`` are worked
+out here for every servo scale of the bank (no matrix exponential runs compiled), and the dead
+time's queue holds the bank's longest delay; a new dead time keeps the levels pending in their
+order (the oldest repeated for a longer delay, the oldest dropped for a shorter one).
 """
 
 from __future__ import annotations
@@ -56,10 +64,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from turning_force.core.compiled import compiled
+from turning_force.core.compiled import compiled, pymax
 from turning_force.core.control import predictor
+from turning_force.core.control.drift import (
+    DEAD_OFFSETS,
+    DEAD_TIME,
+    NONE,
+    SERVO,
+    SERVO_POWERS,
+    SERVO_RATIO,
+)
 from turning_force.core.control.law import (
     C_LAW,
+    C_PERIOD,
     C_REF,
     CS_HELD,
     CS_LAW,
@@ -101,17 +118,27 @@ class Settings(ControllerBase):
                                        f'({self.control_period_s} s)')
 
 
+# The servo models the law may predict with: the commissioned one, then the drift monitor's
+# bank's servo members (time scales SERVO_RATIO^k), each phi (3 x 3) and gamma (3) at the period.
+SCALES = (1.0, *(SERVO_RATIO ** k for k in SERVO_POWERS))
+MODEL_SIZE = 12
 # Parameters (from C_LAW): exponent g, rho, the gain's weight, its first value, the engaged
 # fraction, dead time D and horizon H [periods], the lowest and highest level, the model's
-# order, the trend's weight (0: none), the calm periods it waits for after a jump, phi (3 x 3)
-# and gamma (3) at the period, how many levels, the levels.
+# order, the trend's weight (0: none), the calm periods it waits for after a jump, the servo
+# models' scales and their phi and gamma (SCALES), how many levels, the levels.
 (P_EXPONENT, P_PENALTY, P_WEIGHT, P_GAIN0, P_ENGAGED, P_DEAD, P_HORIZON, P_LOW, P_HIGH,
  P_NX, P_TREND, P_CALM) = range(C_LAW, C_LAW + 12)
-P_PHI, P_GAMMA, P_COUNT, P_LEVELS = C_LAW + 12, C_LAW + 21, C_LAW + 24, C_LAW + 25
+P_SCALES = C_LAW + 12
+P_PHI = P_SCALES + len(SCALES)   # model i: phi from P_PHI + MODEL_SIZE i, then gamma
+P_COUNT = P_PHI + MODEL_SIZE * len(SCALES)
+P_LEVELS = P_COUNT + 1
 # State (from CS_LAW): k, the model's x (3), the queue's next place, k's trend per period and
-# the variance of its innovations, the periods since the last jump; the queue (D levels).
-S_GAIN, S_X, S_QIDX, S_TREND, S_SPREAD, S_CALM, S_QUEUE = (
-    CS_LAW, CS_LAW + 1, CS_LAW + 4, CS_LAW + 5, CS_LAW + 6, CS_LAW + 7, CS_LAW + 8)
+# the variance of its innovations, the periods since the last jump, the servo model in use (its
+# index in SCALES) and the periods added to D (0, 0: the commissioned model, :func:`adopt`);
+# the queue (room for D plus the bank's longest delay).
+S_GAIN, S_X, S_QIDX, S_TREND, S_SPREAD, S_CALM, S_MODEL, S_SHIFT, S_QUEUE = (
+    CS_LAW, CS_LAW + 1, CS_LAW + 4, CS_LAW + 5, CS_LAW + 6, CS_LAW + 7, CS_LAW + 8,
+    CS_LAW + 9, CS_LAW + 10)
 # Innovations past this many standard deviations are a jump (a depth step), not a trend.
 TREND_GATE = 3.0
 TREND_SIGNIFICANCE = 1.0   # the trend's own noise, in standard deviations, left out of it
@@ -122,15 +149,17 @@ def fill(settings: ControllerBase) -> tuple[Sequence[float], int]:
     assert isinstance(settings, Settings)
     c = settings
     period = c.control_period_s
-    phi, gamma = predictor.model_matrices(
-        c.model_servo_model, c.model_servo_time_constant_s, c.model_servo_natural_freq_rad_s,
-        c.model_servo_damping, c.model_cutting_time_constant_s, step_s=period)
-    nx = gamma.size
-    phi_flat = np.zeros(9)
-    for i in range(nx):
-        phi_flat[3 * i:3 * i + nx] = phi[i]
-    gamma_flat = np.zeros(3)
-    gamma_flat[:nx] = gamma
+    models = np.zeros(MODEL_SIZE * len(SCALES))
+    for i, scale in enumerate(SCALES):   # a slower servo: tau_s x scale, or w_n / scale
+        phi, gamma = predictor.model_matrices(
+            c.model_servo_model, c.model_servo_time_constant_s * scale,
+            c.model_servo_natural_freq_rad_s / scale, c.model_servo_damping,
+            c.model_cutting_time_constant_s, step_s=period)
+        nx = gamma.size
+        at = MODEL_SIZE * i
+        for row in range(nx):
+            models[at + 3 * row:at + 3 * row + nx] = phi[row]
+        models[at + 9:at + 9 + nx] = gamma
     table = get_table(c.override_table)
     levels = (np.linspace(table.min_pct, table.max_pct, CONTINUOUS_LEVELS) if table.continuous
               else np.array(table.levels_pct, dtype=np.float64))
@@ -144,8 +173,8 @@ def fill(settings: ControllerBase) -> tuple[Sequence[float], int]:
            (1.0 - math.exp(-period / c.mpc_trend_time_constant_s)
             if c.mpc_trend_time_constant_s > 0.0 else 0.0),
            math.ceil(3.0 * c.mpc_gain_time_constant_s / period),
-           *phi_flat, *gamma_flat, levels.size, *levels]
-    return own, 8 + dead
+           *SCALES, *models, levels.size, *levels]
+    return own, S_QUEUE - CS_LAW + dead + max(DEAD_OFFSETS)
 
 
 @compiled
@@ -163,24 +192,78 @@ def reset(cp: np.ndarray, cs: np.ndarray) -> None:
     cs[S_X] = held
     cs[S_X + nx - 1] = held
     cs[S_QIDX] = 0.0
-    for i in range(int(cp[P_DEAD])):
+    for i in range(_dead(cp, cs)):
         cs[S_QUEUE + i] = held
 
 
 @compiled
-def _advance(cp: np.ndarray, x: np.ndarray, nx: int, level: float) -> None:
-    """One control period of the model: x = phi x + gamma u."""
+def _dead(cp: np.ndarray, cs: np.ndarray) -> int:
+    """The dead time the model is on [periods]: the commissioned one, or the one adopted."""
+    return int(cp[P_DEAD] + cs[S_SHIFT])
+
+
+@compiled
+def _model(cs: np.ndarray) -> int:
+    """Where the servo model in use starts in the parameters (its phi, then its gamma)."""
+    return P_PHI + MODEL_SIZE * int(cs[S_MODEL])
+
+
+@compiled
+def _advance(cp: np.ndarray, model: int, x: np.ndarray, nx: int, level: float) -> None:
+    """One control period of the model starting at ``model``: x = phi x + gamma u."""
     x0, x1, x2 = x[0], x[1], x[2]
     for i in range(nx):
-        row = P_PHI + 3 * i
-        x[i] = cp[row] * x0 + cp[row + 1] * x1 + cp[row + 2] * x2 + cp[P_GAMMA + i] * level
+        row = model + 3 * i
+        x[i] = cp[row] * x0 + cp[row + 1] * x1 + cp[row + 2] * x2 + cp[model + 9 + i] * level
+
+
+@compiled
+def adopt(cp: np.ndarray, cs: np.ndarray, cause: int, size: float) -> bool:
+    """The drift monitor named a lag drift, ``size`` the member of its bank (:mod:`..drift`):
+    the model predicts with that member's servo and dead time from now on (the module's
+    text); the levels pending keep their order (:func:`_requeue`). ``NONE``: the
+    commissioned model (a tool change: the law is reset after). Whether the law took it."""
+    if cause == NONE:
+        cs[S_MODEL], cs[S_SHIFT] = 0.0, 0.0
+        return True
+    if cause == DEAD_TIME:
+        shift = pymax(round(size / cp[C_PERIOD]), -cp[P_DEAD])
+        model = 0
+    elif cause == SERVO:
+        shift, model, gap = 0.0, 0, math.inf
+        for i in range(1, len(SCALES)):   # the bank's member: the nearest scale
+            off = abs(math.log(cp[P_SCALES + i] / size))
+            if off < gap:
+                model, gap = i, off
+    else:
+        return False
+    _requeue(cp, cs, int(cp[P_DEAD] + shift))
+    cs[S_MODEL], cs[S_SHIFT] = model, shift
+    return True
+
+
+@compiled
+def _requeue(cp: np.ndarray, cs: np.ndarray, dead: int) -> None:
+    """The dead time's queue rebuilt for ``dead`` periods, the levels pending in their order:
+    for a longer delay the oldest repeated before them, for a shorter one the oldest dropped
+    (none pending: the level held)."""
+    was = _dead(cp, cs)
+    at = int(cs[S_QIDX])
+    pending = np.empty(max(was, 1))
+    if was == 0:
+        pending[0] = cs[CS_HELD]
+    for j in range(was):
+        pending[j] = cs[S_QUEUE + (at + j) % was]
+    for j in range(dead):
+        cs[S_QUEUE + j] = pending[max(j - (dead - pending.size), 0)]
+    cs[S_QIDX] = 0.0
 
 
 @compiled
 def sent(cp: np.ndarray, cs: np.ndarray, level: float) -> None:
     """The level sent goes into the dead time's queue; the one leaving it drives the model one
     period on, to the next estimate's time."""
-    dead = int(cp[P_DEAD])
+    dead = _dead(cp, cs)
     applied = level
     if dead > 0:
         at = int(cs[S_QIDX])
@@ -190,18 +273,18 @@ def sent(cp: np.ndarray, cs: np.ndarray, level: float) -> None:
     x = np.empty(3)
     for i in range(3):
         x[i] = cs[S_X + i]
-    _advance(cp, x, int(cp[P_NX]), applied)
+    _advance(cp, _model(cs), x, int(cp[P_NX]), applied)
     for i in range(3):
         cs[S_X + i] = x[i]
 
 
 @compiled
-def _response(cp: np.ndarray, x: np.ndarray, nx: int, first: float, then: float,
+def _response(cp: np.ndarray, model: int, x: np.ndarray, nx: int, first: float, then: float,
               z: np.ndarray) -> None:
     """The process-lagged feed at the end of each of the ``z.size`` periods from state ``x``
-    (changed): input ``first`` for one period, then ``then``."""
+    (changed) on the model at ``model``: input ``first`` for one period, then ``then``."""
     for j in range(z.size):
-        _advance(cp, x, nx, first if j == 0 else then)
+        _advance(cp, model, x, nx, first if j == 0 else then)
         z[j] = x[nx - 1]
 
 
@@ -254,7 +337,7 @@ def step(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndar
         _learn(cp, cs, force / z_now ** g)
     k, trend = cs[S_GAIN], _significant_trend(cp, cs)
     horizon = int(cp[P_HORIZON])
-    dead = int(cp[P_DEAD])
+    dead, model = _dead(cp, cs), _model(cs)
     # k over the horizon (the module's text), and the feed z_ref that gives the reference
     # there, and w, which turns feed into force
     lead = (1.0 - cp[P_WEIGHT]) / cp[P_WEIGHT] + dead + 1.0
@@ -273,13 +356,13 @@ def step(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndar
         x[i] = cs[S_X + i]
     at = int(cs[S_QIDX])
     for j in range(dead):
-        _advance(cp, x, nx, cs[S_QUEUE + (at + j) % dead])
+        _advance(cp, model, x, nx, cs[S_QUEUE + (at + j) % dead])
     a, b, c = np.empty(horizon), np.empty(horizon), np.empty(horizon)
-    _response(cp, x, nx, 0.0, 0.0, a)
+    _response(cp, model, x, nx, 0.0, 0.0, a)
     x[:] = 0.0
-    _response(cp, x, nx, 1.0, 0.0, b)
+    _response(cp, model, x, nx, 1.0, 0.0, b)
     x[:] = 0.0
-    _response(cp, x, nx, 0.0, 1.0, c)
+    _response(cp, model, x, nx, 0.0, 1.0, c)
     cc = 0.0
     for j in range(horizon):
         cc += c[j] * c[j]
