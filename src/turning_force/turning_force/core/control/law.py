@@ -111,7 +111,9 @@ CS_PIN_ERROR = 29
 CS_O_FF_PHASE, CS_O_FF_TIME, CS_O_FF_LEVEL, CS_O_FF_SHARE, CS_O_FF_NEAR, CS_O_FF_FAR = \
     range(30, 36)
 # The detune reaction's ceiling on its crossover (.update._quicken; lowered where the
-# reaction's own loop cycled slowly: .update._recycle), and the time since the alarm.
+# reaction's own loop cycled slowly: .update._recycle), and the time since the alarm (before
+# an alarm, negative while the detector lets a law's switch to an adopted model settle:
+# .update.ADOPT_SETTLE).
 CS_O_TOP, CS_O_AGE = 36, 37
 CS_DRIFT = 38   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
