@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 import yaml
 
+from turning_force.core.control import ControllerSettings, make_controller
+from turning_force.core.control.predictor import model_matrices
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import load_experiment, parse_experiment
 from turning_force.core.kernel.batch import InputArrays, replay_chain, run_core
@@ -149,6 +151,45 @@ def test_a_section_is_validated_as_the_nodes_validate_their_settings(tmp_path, s
     path.write_text(yaml.safe_dump(data))
     with pytest.raises(ConfigError, match=message):
         two_tools(path)
+
+
+def regulate(law, periods: int = 800) -> np.ndarray:
+    """The levels ``law`` sends on a noise-free plant of 9.68 N/% through a 0.4 s dead time,
+    the first-order 0.17 s servo and the 0.05 s process lag (test_mpc's plant)."""
+    phi, gamma = model_matrices('first_order', 0.17, 60.0, 0.7, 0.05, step_s=0.01)
+    x, queue, levels = np.array([50.0, 50.0]), [50.0] * 40, np.empty(periods)
+    for k in range(periods):
+        levels[k] = law.update(9.68 * float(x[-1]), 0.0).override_pct
+        queue.append(levels[k])
+        x = phi @ x + gamma * queue.pop(0)
+    return levels
+
+
+@pytest.mark.parametrize('law', ['mpc', 'smc'])
+def test_a_tool_with_a_longer_dead_time_than_the_machines_runs_as_if_it_were_the_machines(
+        tmp_path, law):
+    # The dead time's queue lives in the law's state: a tool's section that lengthens it
+    # (0 s for the machine, 0.4 s for tool 2) must find room for it, or the compiled law
+    # writes past its state (it did: a segmentation fault, or the heap corrupted). With room,
+    # tool 2 regulates exactly as a controller commissioned at 0.4 s for every tool does.
+    path = tmp_path / 'tools.yaml'
+    path.write_text(yaml.safe_dump({'tools': {2: {'force_controller': {
+        'model_dead_time_s': 0.4}}}}))
+    base = ControllerSettings(controller=law, initial_override_pct=50.0, quantiser='nearest',
+                              smc_predictor=True, reference_force_n=500.0)
+    tooled = make_controller(base.replace(tools_file=str(path)))
+    assert tooled.select_tool(2)
+    direct = make_controller(base.replace(model_dead_time_s=0.4))
+    np.testing.assert_array_equal(regulate(tooled), regulate(direct))
+
+
+def test_a_live_change_that_needs_a_longer_queue_is_refused(tmp_path):
+    law = make_controller(ControllerSettings(controller='mpc'))
+    longer = law.settings.replace(model_dead_time_s=0.4)
+    with pytest.raises(ConfigError, match=r'mpc: the new settings need a larger state .*'
+                                          r'model_dead_time_s.*restart the node'):
+        law.retune(longer)
+    assert law.settings.model_dead_time_s == 0.0   # nothing of it taken
 
 
 def test_a_missing_tools_file_is_refused_naming_it(tmp_path):

@@ -102,28 +102,31 @@ class Controller:
         self.min_pct, self.max_pct = self._table.min_pct, self._table.max_pct
         self._levels = np.array(self._table.levels_pct, dtype=np.float64)
         self._params, size = _params(settings, self._table)
-        self._state = np.zeros(CS_LAW + size)
+        self._tools = load_tools_file(settings.tools_file) if settings.tools_file else {}
+        self.tool_table, tool_size = self._tool_table(settings, self._params.size)
+        # Room for the largest state any tool's section needs (its dead time's queue).
+        self._state = np.zeros(CS_LAW + max(size, tool_size))
         self._state[CS_DRIFT + drift.DS_APPLIED] = math.nan   # no override applied told yet
         self._state[CS_HELD] = min(max(settings.initial_override_pct, self.min_pct),
                                    self.max_pct)
         update.controller_start(self._params, self._state)
         self._out = np.zeros(OUT_SIZE)
         self._rpm = math.nan
-        self._tools = load_tools_file(settings.tools_file) if settings.tools_file else {}
-        self.tool_table = self._tool_table()
         self.tool_number = math.nan   # the tool whose settings are in use (NaN: the settings')
 
-    def _tool_table(self) -> FloatArray:
-        """Per tool of the tools file: its number, then the parameters of its settings
-        (:func:`.update.controller_tool`); no rows without a tools file."""
-        per_tool = tool_settings(self.settings, self._tools, self.settings.tools_file)
-        rows = [np.concatenate(([number], _params(s, self._table)[0]))
-                for number, s in per_tool.items()]
-        if any(row.size != self._params.size + 1 for row in rows):
-            raise ConfigError(f'{self.settings.tools_file}: a tool section changes the size of '
+    def _tool_table(self, settings: ControllerSettings, size: int) -> tuple[FloatArray, int]:
+        """Per tool of the tools file over ``settings`` (whose parameters are ``size`` long):
+        its number, then the parameters of its settings (:func:`.update.controller_tool`), no
+        rows without a tools file; and the largest state a tool's law needs (0: none)."""
+        per_tool = tool_settings(settings, self._tools, settings.tools_file)
+        built = [(number, *_params(s, self._table)) for number, s in per_tool.items()]
+        if any(params.size != size for _, params, _ in built):
+            raise ConfigError(f'{settings.tools_file}: a tool section changes the size of '
                               f"the {self.name} law's parameters (its horizon or order): not "
                               'a per-tool setting')
-        return np.array(rows, dtype=np.float64).reshape(len(rows), self._params.size + 1)
+        rows = [np.concatenate(([number], params)) for number, params, _ in built]
+        table = np.array(rows, dtype=np.float64).reshape(len(rows), size + 1)
+        return table, max((need for _, _, need in built), default=0)
 
     def select_tool(self, number: float) -> bool:
         """The machine's tool input says tool ``number``: its settings from now on, the law
@@ -174,10 +177,16 @@ class Controller:
 
     def retune(self, settings: ControllerSettings) -> None:
         """Take new dynamic settings (reference, gains) from the next update on."""
+        params, size = _params(settings, self._table)
+        table, tool_size = self._tool_table(settings, params.size)
+        if CS_LAW + max(size, tool_size) > self._state.size:
+            raise ConfigError(f"{self.name}: the new settings need a larger state for the law's "
+                              'queue (model_dead_time_s) than the one it runs on: not a live '
+                              'setting; restart the node with them')
         self.settings = settings
-        self._params = _params(settings, self._table)[0]
+        self._params = params
         set_spindle_speed(self._params, self._rpm)
-        self.tool_table = self._tool_table()
+        self.tool_table = table
         row = np.flatnonzero(self.tool_table[:, 0] == self.tool_number)
         if row.size:   # the tool in use keeps its section over the new settings
             self._params[:] = self.tool_table[row[0], 1:]
