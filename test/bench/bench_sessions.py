@@ -11,8 +11,9 @@ ours. Issue 14 keeps our scan and codec only where they are at least 10x faster 
 libraries on this session (the in-process times); every message they read is checked equal to
 rosbags' in test/session/test_streaming_reader.py. The writing side too: codec.encode (which
 ``run --core --out`` serialises with) beside rosbags' serialize_cdr, message by message, on
-every message of the session's fixed-layout topics, the bytes checked equal (the message
-objects rosbags needs are built before the clock starts, so its figure is a lower bound).
+every message of the session's fixed-layout topics, a chunk at a time as ``run --core --out``
+writes them, the bytes checked equal (the message objects rosbags needs are built before the
+clock starts, so its figure is a lower bound).
 Targets (issue 9): replay <= 10 s, report <= 10 s, peak memory reading back <= 400 MB.
 
     .venv/bin/python test/bench/bench_sessions.py [--hours H] [--keep DIR]
@@ -134,41 +135,45 @@ def read_libraries(bag: Path) -> int:
 
 
 def serialised(bag: Path, ours: bool) -> tuple[int, float]:
-    """Every message of the session's fixed-layout topics serialised again, with codec.encode
+    """Every message of the session's fixed-layout topics serialised again, chunk by chunk
+    (about the 2048 blocks ``run --core --out`` serialises at once), with codec.encode
     (``ours``) or rosbags' serialize_cdr one message at a time: (messages, in-process time of
     the serialisation alone [s]). The bytes must equal the recorded ones."""
     import numpy as np
 
     from turning_force.session import codec
     from turning_force.session.bag import typestore
-    from turning_force.session.scan import scan_mcap
+    from turning_force.session.scan import McapScan, scan_mcap
 
     store = typestore()
-    scan = scan_mcap(next(bag.glob('*.mcap')))
-    recorded: dict[int, list[bytes]] = {}
-    for message in scan.messages:
-        recorded.setdefault(message.channel_id, []).append(message.data)
-    count, spent = 0, 0.0
-    for channel, raws in recorded.items():
-        msgtype = scan.schemas[scan.channels[channel].schema_id].name
-        if msgtype == 'std_msgs/msg/String' or not codec.supports(store, msgtype):
-            continue   # session/settings (twice a session), /diagnostics: rosbags writes them
-        sizes = np.array([len(r) for r in raws], dtype=np.int64)
-        table, _ = codec.decode(store, msgtype, np.frombuffer(b''.join(raws), dtype=np.uint8),
-                                np.cumsum(sizes) - sizes, sizes)
-        if ours:
-            columns = {p: (v, table.lengths[p]) if p in table.lengths else v
-                       for p, v in table.columns.items()}
-            start = time.perf_counter()
-            data = codec.encode(store, msgtype, columns, table.count)[0]
-        else:
-            objects = [store.deserialize_cdr(r, msgtype) for r in raws]
-            start = time.perf_counter()
-            data = b''.join(bytes(store.serialize_cdr(o, msgtype)) for o in objects)
-        spent += time.perf_counter() - start
-        assert data == b''.join(raws), scan.channels[channel].topic
-        count += len(raws)
-    return count, spent
+    done = {'messages': 0, 'seconds': 0.0}
+
+    def sink(scan: McapScan, data: np.ndarray, channels: np.ndarray, log_times: np.ndarray,
+             offsets: np.ndarray, sizes: np.ndarray) -> None:
+        for channel in np.unique(channels).tolist():
+            msgtype = scan.schemas[scan.channels[channel].schema_id].name
+            if msgtype == 'std_msgs/msg/String' or not codec.supports(store, msgtype):
+                continue   # session/settings (twice a session), /diagnostics: rosbags's
+            picked = channels == channel
+            at, size = offsets[picked].tolist(), sizes[picked].tolist()
+            recorded = b''.join(data[o:o + n].tobytes() for o, n in zip(at, size, strict=True))
+            table, _ = codec.decode(store, msgtype, data, offsets[picked], sizes[picked])
+            if ours:
+                columns = {p: (v, table.lengths[p]) if p in table.lengths else v
+                           for p, v in table.columns.items()}
+                start = time.perf_counter()
+                written = codec.encode(store, msgtype, columns, table.count)[0]
+            else:
+                objects = [store.deserialize_cdr(data[o:o + n].tobytes(), msgtype)
+                           for o, n in zip(at, size, strict=True)]
+                start = time.perf_counter()
+                written = b''.join(bytes(store.serialize_cdr(m, msgtype)) for m in objects)
+            done['seconds'] += time.perf_counter() - start
+            assert written == recorded, scan.channels[channel].topic
+            done['messages'] += table.count
+
+    scan_mcap(next(bag.glob('*.mcap')), sink)
+    return int(done['messages']), done['seconds']
 
 
 def _child(which: str, bag: str) -> None:
