@@ -9,7 +9,11 @@ kept here as :func:`read_old`); with the libraries alone, as well as they allow
 record scan, codec.py's array-level CDR chunk by chunk); and the scan alone, mcap's reader beside
 ours. Issue 14 keeps our scan and codec only where they are at least 10x faster than the
 libraries on this session (the in-process times); every message they read is checked equal to
-rosbags' in test/session/test_streaming_reader.py.
+rosbags' in test/session/test_streaming_reader.py. The writing side too: codec.encode (which
+``run --core --out`` serialises with) beside rosbags' serialize_cdr, message by message, on
+every message of the session's fixed-layout topics, a chunk at a time as ``run --core --out``
+writes them, the bytes checked equal (the message objects rosbags needs are built before the
+clock starts, so its figure is a lower bound).
 Targets (issue 9): replay <= 10 s, report <= 10 s, peak memory reading back <= 400 MB.
 
     .venv/bin/python test/bench/bench_sessions.py [--hours H] [--keep DIR]
@@ -130,7 +134,53 @@ def read_libraries(bag: Path) -> int:
     return int(first.size)
 
 
+def serialised(bag: Path, ours: bool) -> tuple[int, float]:
+    """Every message of the session's fixed-layout topics serialised again, chunk by chunk
+    (about the 2048 blocks ``run --core --out`` serialises at once), with codec.encode
+    (``ours``) or rosbags' serialize_cdr one message at a time: (messages, in-process time of
+    the serialisation alone [s]). The bytes must equal the recorded ones."""
+    import numpy as np
+
+    from turning_force.session import codec
+    from turning_force.session.bag import typestore
+    from turning_force.session.scan import McapScan, scan_mcap
+
+    store = typestore()
+    done = {'messages': 0, 'seconds': 0.0}
+
+    def sink(scan: McapScan, data: np.ndarray, channels: np.ndarray, log_times: np.ndarray,
+             offsets: np.ndarray, sizes: np.ndarray) -> None:
+        for channel in np.unique(channels).tolist():
+            msgtype = scan.schemas[scan.channels[channel].schema_id].name
+            if msgtype == 'std_msgs/msg/String' or not codec.supports(store, msgtype):
+                continue   # session/settings (twice a session), /diagnostics: rosbags's
+            picked = channels == channel
+            at, size = offsets[picked].tolist(), sizes[picked].tolist()
+            recorded = b''.join(data[o:o + n].tobytes() for o, n in zip(at, size, strict=True))
+            table, _ = codec.decode(store, msgtype, data, offsets[picked], sizes[picked])
+            if ours:
+                columns = {p: (v, table.lengths[p]) if p in table.lengths else v
+                           for p, v in table.columns.items()}
+                start = time.perf_counter()
+                written = codec.encode(store, msgtype, columns, table.count)[0]
+            else:
+                objects = [store.deserialize_cdr(data[o:o + n].tobytes(), msgtype)
+                           for o, n in zip(at, size, strict=True)]
+                start = time.perf_counter()
+                written = b''.join(bytes(store.serialize_cdr(m, msgtype)) for m in objects)
+            done['seconds'] += time.perf_counter() - start
+            assert written == recorded, scan.channels[channel].topic
+            done['messages'] += table.count
+
+    scan_mcap(next(bag.glob('*.mcap')), sink)
+    return int(done['messages']), done['seconds']
+
+
 def _child(which: str, bag: str) -> None:
+    if which in ('encode', 'serialize'):
+        count, spent = serialised(Path(bag), which == 'encode')
+        print(f'{count} {spent:.3f}')
+        return
     start = time.perf_counter()
     if which == 'old':
         n = read_old(Path(bag))
@@ -194,7 +244,9 @@ def main() -> None:
                         ('libraries', 'read, libraries (mcap reader + rosbags + numpy)'),
                         ('new', 'read, ours (scan.py + codec.py, arrays)'),
                         ('mcap', '  scan only, mcap reader (CRCs checked)'),
-                        ('scan', '  scan only, ours (scan.py, CRCs checked)')):
+                        ('scan', '  scan only, ours (scan.py, CRCs checked)'),
+                        ('serialize', 'write, rosbags (serialize_cdr per message)'),
+                        ('encode', 'write, ours (codec.encode, arrays)')):
         wall, mb, out = timed([*me, which, str(bag)])
         inner = float(out.split()[1])
         reads[which] = inner
@@ -211,7 +263,8 @@ def main() -> None:
     print(f'  in-process, libraries / ours: read {reads["libraries"] / reads["new"]:.1f}x, '
           f'scan {reads["mcap"] / reads["scan"]:.1f}x, decode (read less scan) '
           f'{(reads["libraries"] - reads["mcap"]) / (reads["new"] - reads["scan"]):.1f}x; '
-          f'old / ours {reads["old"] / reads["new"]:.1f}x '
+          f'old / ours {reads["old"] / reads["new"]:.1f}x; '
+          f'serialising {reads["serialize"] / reads["encode"]:.1f}x '
           '(keep ours where >= 10x; targets: replay <= 10 s, report <= 10 s, '
           'reading back <= 400 MB)')
 

@@ -87,6 +87,26 @@ def _warn(session: Any) -> None:
         print(f'turning-force: warning: {session.warning}', file=sys.stderr)
 
 
+def _read(bag: str, args: argparse.Namespace) -> Any:
+    """The session ``bag`` as ``--partial`` allows, its warning printed."""
+    from turning_force.session.reader import read_session
+
+    session = read_session(bag, args.partial)
+    _warn(session)
+    return session
+
+
+def _replayed(bag: str, args: argparse.Namespace) -> Any:
+    """The session ``bag`` (:func:`_read`) with the settings to replay it with: ``--experiment``
+    instead of the recorded ones where given, then the ``--params`` files."""
+    from turning_force.session.replay import lay_settings
+
+    session = _read(bag, args)
+    lay_settings(session, load_experiment(args.experiment) if args.experiment else None,
+                 args.params)
+    return session
+
+
 def _recorded(bag: Path, record: Callable[[Callable[[int, int], None]], Any],
               show: Callable[[int, int], None] | None) -> Any:
     """``record(progress)``, a recorded run, stopped by SIGINT or SIGTERM where it calls
@@ -108,14 +128,6 @@ def _recorded(bag: Path, record: Callable[[Callable[[int, int], None]], Any],
             raise Interrupted(f'interrupted by {signal.Signals(signum).name} after the run: '
                               f'the session {bag} is complete', signum)
     return outcome
-
-
-def _lockstep(args: argparse.Namespace, experiment: Any, bag: Path) -> Any:
-    """The lock-step run, stopped between two steps by SIGINT or SIGTERM."""
-    from turning_force.commands.run import print_progress, run_lockstep
-
-    return _recorded(bag, lambda progress: run_lockstep(experiment, bag, progress),
-                     None if args.json else print_progress)
 
 
 def _load(path: str, params: Sequence[str], sets: Sequence[str]) -> Experiment:
@@ -187,6 +199,7 @@ def _run(args: argparse.Namespace) -> int:
         drifted = result.drift
         stopped = handed_back(result.trace['t_s'], result.trace['override_reason'])
     else:
+        from turning_force.commands.run import print_progress, run_lockstep
         from turning_force.session.reader import read_session, recorded_metrics
         from turning_force.session.report import write_report
 
@@ -198,7 +211,8 @@ def _run(args: argparse.Namespace) -> int:
             except OSError as exc:
                 raise TurningForceError(f'{bag.parent}: cannot create: {exc.strerror}') from exc
         _check_writable(bag, '--out' if args.out else '', new=True)
-        outcome = _lockstep(args, experiment, bag)
+        outcome = _recorded(bag, lambda step: run_lockstep(experiment, bag, step),
+                            None if args.json else print_progress)
         with _signals(defer=False):   # the session is closed: a signal stops the figure
             session = read_session(bag)
             stopped = handed_back(session.t_s, session.signals['override_reason'])
@@ -242,10 +256,9 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _prediction(params: Sequence[str] | str | None) -> dict[str, Any] | None:
+def _prediction(params: Sequence[str]) -> dict[str, Any] | None:
     """The prediction ``identify`` wrote into a parameters file's header, if one is given."""
-    files = [params] if isinstance(params, str) else list(params or [])
-    for name in files:
+    for name in params:
         for line in Path(name).read_text().splitlines():
             if line.startswith(f'# {PREDICTION} '):
                 found: dict[str, Any] = json.loads(line.split(' ', 2)[2])
@@ -270,23 +283,19 @@ def _replay(args: argparse.Namespace) -> int:
     _parallel(args)
     if len(args.bags) > 1 or args.dask:
         return _replay_many(args)
-    from turning_force.session.reader import read_session
-
     bag = args.bags[0]
     if args.closed_loop:
         return _what_if(args, bag)
-    session = read_session(bag, args.partial)
-    _warn(session)
     if args.publish:
         from turning_force.commands.play import play
 
+        _read(bag, args)   # refused, or its warning printed, before anything is played
         play(Path(bag), args.rate, partial=args.partial)
         return 0
     from turning_force.commands.run import print_progress
-    from turning_force.session.replay import lay_settings, replay
+    from turning_force.session.replay import replay
 
-    lay_settings(session, load_experiment(args.experiment) if args.experiment else None,
-                 args.params)
+    session = _replayed(bag, args)
     result = replay(session, args.set, None if args.json else print_progress)
     comparison = result.comparison(len(session.blocks))
     _print_replay(args, str(session.path), result.recorded, result.rerun, comparison,
@@ -425,13 +434,7 @@ def _sweep(args: argparse.Namespace) -> int:
         _check_writable(Path(path), flag, new=False)
     replayed: Any = None
     if args.replay:
-        from turning_force.session.reader import read_session
-        from turning_force.session.replay import lay_settings
-
-        replayed = read_session(args.replay, args.partial)
-        _warn(replayed)
-        lay_settings(replayed, load_experiment(args.experiment) if args.experiment else None,
-                     args.params)
+        replayed = _replayed(args.replay, args)
         experiment = replayed.experiment
     elif args.experiment:
         experiment = _load(args.experiment, args.params, [])
@@ -504,15 +507,14 @@ def _cell(value: Any) -> str:
 
 
 def _report(args: argparse.Namespace) -> int:
-    from turning_force.session.reader import read_session, recorded_metrics
+    from turning_force.session.reader import recorded_metrics
     from turning_force.session.report import write_html_report, write_report
 
     out = Path(args.out) if args.out else Path(str(args.bag).rstrip('/') + '.png')
     if out.suffix not in ('.png', '.html'):
         raise TurningForceError(f'--out {out}: write .png or .html')
     _check_writable(out, '--out' if args.out else '', new=False)
-    session = read_session(args.bag, args.partial)
-    _warn(session)
+    session = _read(args.bag, args)
     metrics = recorded_metrics(session)
     (write_report if out.suffix == '.png' else write_html_report)(session, metrics, out)
     if args.json:
@@ -527,11 +529,8 @@ def _calibrate(args: argparse.Namespace) -> int:
     if args.map:
         return _calibrate_map(args)
     from turning_force.session.calibrate import calibrate
-    from turning_force.session.reader import read_session
 
-    sessions = [read_session(bag, args.partial) for bag in args.bags]
-    for session in sessions:
-        _warn(session)
+    sessions = [_read(bag, args) for bag in args.bags]
     result = calibrate(sessions, args.settle_s)
     parameters = result.estimator_parameters()
     if args.json:
@@ -648,7 +647,9 @@ def _identify(args: argparse.Namespace) -> int:
     sections: Mapping[str, Mapping[str, Any]] = (
         found if chosen.name != 'defaults' else {'force_controller': {}})
     if args.json:
-        print(json.dumps({**_identification_json(ident, controller, estimator, cut_depth),
+        # every fit with its parameters (value, std, unit), residual, samples and BIC
+        print(json.dumps({**dataclasses.asdict(ident), 'cut_depth_mm': cut_depth,
+                          'force_controller': controller, 'force_estimator': estimator,
                           'predictions': [dataclasses.asdict(p) for p in predictions],
                           'chosen': chosen.name}))
     else:
@@ -728,13 +729,6 @@ def _verification_job(args: argparse.Namespace, commissioning: Any,
         'lathe_sim.depth_times_s=[0.0, 4.0, 8.0]',
         f'lathe_sim.depth_mm=[{low!r}, {(low + high) / 2.0!r}, {high!r}]',
         'lathe_sim.depth_interpolation=step', 'experiment.duration_s=12.0'])
-
-
-def _identification_json(ident: Any, controller: dict[str, Any], estimator: dict[str, Any],
-                         cut_depth: float | None) -> dict[str, Any]:
-    # Every fit with its parameters (value, std, unit), residual, samples and BIC.
-    return {**dataclasses.asdict(ident), 'cut_depth_mm': cut_depth,
-            'force_controller': controller, 'force_estimator': estimator}
 
 
 def _job_depths(args: argparse.Namespace) -> tuple[float, float]:

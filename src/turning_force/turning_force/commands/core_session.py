@@ -42,8 +42,7 @@ from turning_force.session.bag import (
     typestore,
 )
 
-__all__ = ['NOT_RECORDED', 'RECORDER', 'TOPICS', 'CoreSession', 'record_core',
-           'write_core_session']
+__all__ = ['NOT_RECORDED', 'RECORDER', 'TOPICS', 'CoreSession', 'record_core']
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -80,23 +79,16 @@ def record_core(experiment: Experiment, out: Path,
     a run stopped at any point leaves a session that says so: whatever ``progress`` raises
     (a signal, between two batches) or the run raises closes it as ended early, with the
     blocks written; a kill leaves it unclosed (read back as killed)."""
-    run = _record(experiment, out, lambda: run_core(experiment), progress)
-    return CoreSession(out, run, len(run.currents))
-
-
-def _record(experiment: Experiment, out: Path, make_run: Callable[[], CoreRun],
-            progress: Callable[[int, int], None] | None) -> CoreRun:
-    """The session ``out`` opened, then ``make_run()`` written to it (:func:`record_core`)."""
     writer = _open_session(experiment, out)
     try:
-        run = make_run()
-        _write(writer, typestore(), experiment, run, progress)
+        run = run_core(experiment)
+        _write(writer, experiment, run, progress)
     except BaseException as exc:
         writer.end(stopped_by(exc))
         writer.close()
         raise
     writer.close()
-    return run
+    return CoreSession(out, run, len(run.currents))
 
 
 def _open_session(experiment: Experiment, out: Path) -> SessionWriter:
@@ -125,14 +117,7 @@ def _stamp(ns: IntArray) -> dict[str, IntArray]:
     return {'header.stamp.sec': ns // 1_000_000_000, 'header.stamp.nanosec': ns % 1_000_000_000}
 
 
-def write_core_session(experiment: Experiment, run: CoreRun, out: Path,
-                       progress: Callable[[int, int], None] | None = None) -> Path:
-    """Write ``run`` (of ``experiment``) as a session folder ``out``."""
-    _record(experiment, out, lambda: run, progress)
-    return out
-
-
-def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreRun,
+def _write(writer: SessionWriter, experiment: Experiment, run: CoreRun,
            progress: Callable[[int, int], None] | None) -> None:
     c, chain, plant = run.currents, run.chain, run.plant
     n, m = len(c), c.samples_per_block
@@ -156,7 +141,7 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
     # The override the bridge writes when it is configured (the programmed feed, disarmed),
     # before the first block; logged with it.
     code, hand_back = table.encode(100.0)
-    initial = _encode(store, '/pmc/feed_override', {
+    initial = _encode('/pmc/feed_override', {
         **_stamp(np.zeros(1, dtype=np.int64)), 'applied_pct': 100.0, 'requested_pct': np.nan,
         'pmc_code': code, 'pmc_bits': np.array([hand_back], dtype=bool),
         'table': table.name, 'armed': False, 'reason': 1,
@@ -165,7 +150,7 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
     # The tool each decision saw (FeedOverride's tool_number: -1 where none is given).
     seen_tool = experiment.plant.inputs_array(c.t_end_s)[:, 4]
     tool_number = np.where(np.isnan(seen_tool), -1, seen_tool).astype(np.int32)
-    cuts, cut_blocks = _cuts(store, run, experiment, end_ns)
+    cuts, cut_blocks = _cuts(run, experiment, end_ns)
     details = _Details(chain.estimate_detail)
     for start in range(0, n, BATCH_BLOCKS):
         k = slice(start, min(start + BATCH_BLOCKS, n))
@@ -224,7 +209,7 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
                 columns = {name: (v[keep] if isinstance(v, np.ndarray) and v.shape[:1] ==
                                   (count,) else v) for name, v in columns.items()}
             blocks = np.arange(count) if keep is None else np.flatnonzero(keep)
-            data, offsets = _encode(store, topic, columns, int(blocks.size))
+            data, offsets = _encode(topic, columns, int(blocks.size))
             pieces.append((data, offsets, blocks, order[topic]))
         ended = (cut_blocks >= k.start) & (cut_blocks < k.stop)
         if ended.any():
@@ -241,7 +226,7 @@ def _write(writer: SessionWriter, store: Any, experiment: Experiment, run: CoreR
             progress(k.stop, n)
 
 
-def _cuts(store: Any, run: CoreRun, experiment: Experiment, end_ns: IntArray
+def _cuts(run: CoreRun, experiment: Experiment, end_ns: IntArray
           ) -> tuple[tuple[bytes, IntArray], IntArray]:
     """The cut log's messages (bytes, offsets) and the block whose answer ended each cut: the
     block ``debounce`` blocks after its last (:class:`turning_force.core.pmc.shopfloor.CutLog`).
@@ -263,7 +248,7 @@ def _cuts(store: Any, run: CoreRun, experiment: Experiment, end_ns: IntArray
     columns: dict[str, Any] = {**_stamp(stamps), 'tool': bridge.tool}
     for name in (*(f.name for f in fields(CutRecord) if f.name != 'tool'), 'duration_s'):
         columns[name] = np.array([getattr(r, name) for r in records])
-    return (_encode(store, '/pmc/cuts', columns, len(records)),
+    return (_encode('/pmc/cuts', columns, len(records)),
             last.astype(np.int64) + bridge.debounce_blocks(period_s))
 
 
@@ -285,9 +270,8 @@ class _Details:
         return column
 
 
-def _encode(store: Any, topic: str, columns: dict[str, Any], count: int
-            ) -> tuple[bytes, IntArray]:
-    return codec.encode(store, TOPICS[topic], columns, count)
+def _encode(topic: str, columns: dict[str, Any], count: int) -> tuple[bytes, IntArray]:
+    return codec.encode(typestore(), TOPICS[topic], columns, count)
 
 
 def _write_batch(writer: SessionWriter, topics: list[str],

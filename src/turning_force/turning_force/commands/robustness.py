@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from turning_force.core.experiment import Experiment, load_experiment
+from turning_force.core.experiment import Experiment, assignments, load_experiment
 from turning_force.core.identify import identify
 from turning_force.core.kernel.record import record
 from turning_force.core.kernel.simulate import simulate
@@ -102,9 +102,7 @@ def _identified(commissioning: Experiment, fig8_depths: tuple[float, ...]) -> tu
     cut_depth = max(commissioning.plant.depth_mm)
     low, high = ident.ksd_bounds_n_mm(depth_scale=(min(fig8_depths) / cut_depth,
                                                    max(fig8_depths) / cut_depth))
-    params = ident.controller_parameters(low, high)
-    return tuple(f'force_controller.{key}={value!r}' if not isinstance(value, str)
-                 else f'force_controller.{key}={value}' for key, value in params.items())
+    return tuple(assignments('force_controller', ident.controller_parameters(low, high)))
 
 
 def scenario_experiment(directory: Path, scenario: Scenario, controller: str,
