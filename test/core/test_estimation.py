@@ -413,42 +413,34 @@ def test_the_re_zero_takes_the_cut_forces_tail_off_what_it_reads_as_friction():
     assert abs(np.mean(slow_errors)) < 1.5
 
 
-@pytest.mark.parametrize('drift', [1.25, 0.8])
-def test_a_friction_drift_is_read_through_the_cut_forces_tail(drift):
+@pytest.mark.parametrize(('drift', 'tau_c_s', 'air_s'), [
     # The drift lifts (or lowers) the estimate in air as the tail decays: the re-zero tells
     # them apart by where the estimate crossed rezero_below_n and where it is as the re-zero
     # starts (estimator._tail_at_start), and reads the drift, not the tail. A 2 mm cut left
     # at 2 s on chips with tau_c 0.19 s, 2 s of air: the estimate (24 N of 25 % more
     # friction at the 30 % feed) falls under 40 N some 0.8 s after the exit, the re-zero
-    # reads for 0.9 s from 0.3 s later: 1 - exp(-0.9 / 0.3) = 95 % of the way, 1.5 % of the
-    # scale short of a 25 % drift (0.02 allows it and the 0.3 % of noise).
-    defaults = PlantSettings()
-    plant = PlantSettings(cutting_time_constant_s=0.19, depth_times_s=(0.0, 2.0, 4.0),
-                          depth_mm=(2.0, 0.0, 2.0),
-                          friction_at_min_feed_a=drift * defaults.friction_at_min_feed_a,
-                          friction_at_max_feed_a=drift * defaults.friction_at_max_feed_a)
-    estimator = ForceEstimator(EstimatorSettings(model_cutting_time_constant_s=0.19))
-    for block in blocks_of(plant, [100.0] * 200 + [30.0] * 200 + [100.0] * 100):
-        estimator.update(block.currents)
-    assert estimator.friction_scale == pytest.approx(drift, abs=0.02)
-
-
-@pytest.mark.parametrize('drift', [1.44, 0.8])
-def test_one_short_air_move_reads_the_whole_friction_drift(drift):
+    # reads for 0.9 s from 0.3 s later.
+    (1.25, 0.19, 2.0), (0.8, 0.19, 2.0),
     # An interrupted cut (bench_population seed 15, #131: 44 % more friction, tau_c 0.14 s)
-    # leaves the work for 1 s at the 30 % entry feed. The estimate, lifted by the drift (up
-    # to 38 N here), falls from the cut and the re-zero reads from 2.73 s to the re-entry at
-    # 3 s: 0.27 s. Each air move measures the friction anew (estimator._rezero): the scale is
-    # the mean of its readings, the drift in full to the q current's noise over 270 samples
-    # (0.3 % of the friction) and the tail model's error (under 1 %): 2 %. An exponential
-    # follow with rezero_time_constant_s (0.3 s) alone went 1 - exp(-0.27 / 0.3) = 59 % of
-    # the way (a scale of 1.26 for 1.44), and the next cut ran 20 N low.
+    # out of the work for 1 s: the estimate, lifted by the drift (up to 38 N here), falls
+    # from the cut and the re-zero reads from 2.73 s to the re-entry at 3 s, 0.27 s. An
+    # exponential follow with rezero_time_constant_s (0.3 s) alone went
+    # 1 - exp(-0.27 / 0.3) = 59 % of the way (a scale of 1.26 for 1.44), and the next cut ran
+    # 20 N low.
+    (1.44, 0.14, 1.0), (0.8, 0.14, 1.0),
+])
+def test_a_friction_drift_is_read_through_the_cut_forces_tail_in_one_air_move(
+        drift, tau_c_s, air_s):
+    # Each air move measures the friction anew (estimator._rezero): the scale is the mean of
+    # its readings, the drift in full to the q current's noise over the 270-900 samples read
+    # (0.3 % of the friction) and the tail model's error (under 1 %): 2 %.
     defaults = PlantSettings()
-    plant = PlantSettings(cutting_time_constant_s=0.14, depth_times_s=(0.0, 2.0, 3.0),
+    plant = PlantSettings(cutting_time_constant_s=tau_c_s, depth_times_s=(0.0, 2.0, 2.0 + air_s),
                           depth_mm=(2.0, 0.0, 2.0),
                           friction_at_min_feed_a=drift * defaults.friction_at_min_feed_a,
                           friction_at_max_feed_a=drift * defaults.friction_at_max_feed_a)
-    estimator = ForceEstimator(EstimatorSettings(model_cutting_time_constant_s=0.14))
-    for block in blocks_of(plant, [100.0] * 200 + [30.0] * 100 + [100.0] * 100):
+    estimator = ForceEstimator(EstimatorSettings(model_cutting_time_constant_s=tau_c_s))
+    air_blocks = round(air_s / 0.01)
+    for block in blocks_of(plant, [100.0] * 200 + [30.0] * air_blocks + [100.0] * 100):
         estimator.update(block.currents)
     assert estimator.friction_scale == pytest.approx(drift, abs=0.02)
