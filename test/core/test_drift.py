@@ -379,6 +379,24 @@ def test_the_model_error_is_the_slow_part_of_the_commissioning_residual(
     assert drift.model_error(slow) == pytest.approx(5.276, abs=1e-3)
 
 
+@pytest.mark.parametrize(('depth_mm', 'friction_n'), [(1.0, 87.6), (3.0, 94.7)])
+def test_the_friction_share_is_the_one_at_the_feed_the_jobs_start_holds(
+        park_identified: tuple[Identification, float], depth_mm: float,
+        friction_n: float) -> None:
+    # Park's steel (K_s 2200 N/mm^2, g 1, 0.2 mm/rev at 600 rpm: 120 mm/min programmed) holds
+    # 500 N at 1 mm with 500 / 440 = 114 % override (136 mm/min), at 3 mm with 38 % (45.5
+    # mm/min). The lathe's friction (Park Eq. 25: 0.60 A at 6 mm/min, 0.35 A at 300) there is
+    # 0.551 A and 0.596 A, 87.6 N and 94.7 N by Eq. 26's 0.00629 A/N; at the programmed feed
+    # it is 89.4 N, which the monitor measured a friction drift against before, wherever the
+    # cut ran. The commissioning identified the curve, K_s and g to a tenth of a percent:
+    # 0.5 N.
+    _, monitor = population.identified_sets(PARK_GAIN, *park_identified,
+                                            (depth_mm, depth_mm))
+    written = next(float(a.split('=')[1]) for a in monitor
+                   if a.startswith('force_controller.drift_friction_n='))
+    assert written == pytest.approx(friction_n, abs=0.5)
+
+
 def test_a_gain_drift_is_named_at_the_start_of_a_job_over_several_depths(
         park_identified: tuple[Identification, float]) -> None:
     # Fig. 8's job cuts 1, 2 and 3 mm (4 s each). The force gives K_s d: 40 % harder steel at

@@ -396,35 +396,51 @@ def test_the_re_zero_takes_the_cut_forces_tail_off_what_it_reads_as_friction():
     # = 8 N of it are left, falling with tau_c, while the re-zero reads the q current as
     # friction (0.6 A at the 30 % feed, 1 N = 0.0063 A by Eq. 26's slope: 8 N is 8 % of it).
     # Told tau_c 0 (a static process) it reads the tail, and the re-entry's rise, as friction:
-    # the scale goes 1 - exp(-0.4 s / 0.3 s) = 74 % of the way to what the 0.4 s of air read,
-    # the tail's mean over them some 3 N (3 % of the friction's 95 N): the scale 2.7 % high,
-    # the estimate 2.5 N low in the next cut (asserted with half a percent and 1 N to spare).
+    # the scale is the mean of what the air move read (estimator._rezero), the tail's mean
+    # over the reading some 3-7 N (3-7 % of the friction's 95 N): the scale that much high,
+    # the estimate as much low in the next cut (asserted at 2 % and 1.5 N).
     # Told the plant's tau_c, it subtracts the tail and drops the readings the re-entry's rise
-    # reached: the friction unchanged, to the 1 % that 0.02 A of noise on the q current leaves
-    # in 0.4 s of air (REZERO_STD is 2.5 %).
+    # reached: the friction unchanged, to what 0.12 s of reading leaves (the estimate falls
+    # under 40 N at 2.59 s, the re-zero reads from 0.3 s later to the re-entry at 3 s): the
+    # q current's noise over 120 samples, some 0.4 % of the friction, and the tail model's
+    # error on an 8 N tail, under 1 % (REZERO_STD, the reading's standard deviation the drift
+    # monitor takes, is 2.5 %): 1.5 %, and 1.5 N of the estimate in the next cut.
     static, static_errors = _interrupted_cut(0.0)
     slow, slow_errors = _interrupted_cut(0.19)
     assert static.friction_scale > 1.02
     assert np.mean(static_errors) < -1.5
-    assert slow.friction_scale == pytest.approx(1.0, abs=0.01)
-    assert abs(np.mean(slow_errors)) < 1.0
+    assert slow.friction_scale == pytest.approx(1.0, abs=0.015)
+    assert abs(np.mean(slow_errors)) < 1.5
 
 
-@pytest.mark.parametrize('drift', [1.25, 0.8])
-def test_a_friction_drift_is_read_through_the_cut_forces_tail(drift):
+@pytest.mark.parametrize(('drift', 'tau_c_s', 'air_s'), [
     # The drift lifts (or lowers) the estimate in air as the tail decays: the re-zero tells
     # them apart by where the estimate crossed rezero_below_n and where it is as the re-zero
     # starts (estimator._tail_at_start), and reads the drift, not the tail. A 2 mm cut left
     # at 2 s on chips with tau_c 0.19 s, 2 s of air: the estimate (24 N of 25 % more
     # friction at the 30 % feed) falls under 40 N some 0.8 s after the exit, the re-zero
-    # reads for 0.9 s from 0.3 s later: 1 - exp(-0.9 / 0.3) = 95 % of the way, 1.5 % of the
-    # scale short of a 25 % drift (0.02 allows it and the 0.3 % of noise).
+    # reads for 0.9 s from 0.3 s later.
+    (1.25, 0.19, 2.0), (0.8, 0.19, 2.0),
+    # An interrupted cut (bench_population seed 15, #131: 44 % more friction, tau_c 0.14 s)
+    # out of the work for 1 s: the estimate, lifted by the drift (up to 38 N here), falls
+    # from the cut and the re-zero reads from 2.73 s to the re-entry at 3 s, 0.27 s. An
+    # exponential follow with rezero_time_constant_s (0.3 s) alone went
+    # 1 - exp(-0.27 / 0.3) = 59 % of the way (a scale of 1.26 for 1.44), and the next cut ran
+    # 20 N low.
+    (1.44, 0.14, 1.0), (0.8, 0.14, 1.0),
+])
+def test_a_friction_drift_is_read_through_the_cut_forces_tail_in_one_air_move(
+        drift, tau_c_s, air_s):
+    # Each air move measures the friction anew (estimator._rezero): the scale is the mean of
+    # its readings, the drift in full to the q current's noise over the 270-900 samples read
+    # (0.3 % of the friction) and the tail model's error (under 1 %): 2 %.
     defaults = PlantSettings()
-    plant = PlantSettings(cutting_time_constant_s=0.19, depth_times_s=(0.0, 2.0, 4.0),
+    plant = PlantSettings(cutting_time_constant_s=tau_c_s, depth_times_s=(0.0, 2.0, 2.0 + air_s),
                           depth_mm=(2.0, 0.0, 2.0),
                           friction_at_min_feed_a=drift * defaults.friction_at_min_feed_a,
                           friction_at_max_feed_a=drift * defaults.friction_at_max_feed_a)
-    estimator = ForceEstimator(EstimatorSettings(model_cutting_time_constant_s=0.19))
-    for block in blocks_of(plant, [100.0] * 200 + [30.0] * 200 + [100.0] * 100):
+    estimator = ForceEstimator(EstimatorSettings(model_cutting_time_constant_s=tau_c_s))
+    air_blocks = round(air_s / 0.01)
+    for block in blocks_of(plant, [100.0] * 200 + [30.0] * air_blocks + [100.0] * 100):
         estimator.update(block.currents)
     assert estimator.friction_scale == pytest.approx(drift, abs=0.02)

@@ -283,8 +283,9 @@ class ControllerBase(Settings):
         'model predicts (its parameters and its residual in the commissioning cut)', '-',
         low=0.0, high=1.0)
     drift_friction_n: float = setting(
-        0.0, "Drift monitor: the identified friction current at the programmed feed, as force "
-        "(Park Eqs. 25, 26): a friction drift's share of the estimate is measured against it",
+        0.0, "Drift monitor: the identified friction current at the feed that holds the "
+        "reference at the job's start, as force (Park Eqs. 25, 26): a friction drift's share "
+        'of the estimate is measured against it',
         'N', low=0.0, high=1e5)
     drift_friction_std: float = setting(
         0.0, 'Drift monitor: relative standard deviation of the identified friction',

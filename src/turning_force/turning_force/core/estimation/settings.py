@@ -90,7 +90,8 @@ class EstimatorSettings(FeedDriveSettings):
                                     'rezero_below_n first', 's', low=0.0, low_open=True,
                                     high=60.0)
     rezero_time_constant_s: float = setting(0.3, 'Friction re-zero: how fast the friction scale '
-                                            'follows what the air move measures', 's',
+                                            'follows what a long air move measures (each air '
+                                            "move's mean is taken where that is faster)", 's',
                                             low=1e-3, high=600.0)
     rezero_stale_s: float = setting(300.0, 'Friction re-zero: a WARN on /diagnostics when no '
                                     'air move has re-zeroed the friction for this long (a '
