@@ -8,6 +8,7 @@ their servo or PMC dead time drifted, the loop ends in band; an unchanged machin
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -299,3 +300,43 @@ def test_a_ring_the_alarm_caught_before_the_drift_was_named_is_let_go_once_it_is
     assert late.metrics['oscillation_alarms'] == 1.0
     assert late.metrics['steady_mean_abs_error_n'] <= 5.0, late.metrics
     assert late.metrics['ripple_p2p_n'] <= 25.0, late.metrics
+
+
+def test_the_graph_says_which_model_the_law_predicts_with(
+        smc_machine: tuple[population.Machine, list[str]], tmp_path: Path) -> None:
+    # The node graph in lock-step on the same machine, its dead time +50 %: the core loop's
+    # trace says from when the law predicts with which member (drift_adopted), and
+    # force_controller's /diagnostics, which the session records, says it in words under
+    # 'model' ('commissioned' before).
+    from rosbags.highlevel import AnyReader
+
+    from turning_force.commands.run import run_lockstep
+    from turning_force.session.bag import typestore
+
+    machine, sets = smc_machine
+    experiment = population.job_experiment(replace(machine, drifted=smc_drifted(
+        machine, 'dead time'))).with_sets([*sets, 'experiment.duration_s=4.0'])
+    core = simulate(experiment)
+    taken = core.trace['drift_adopted']
+    assert taken.any() and drift.CAUSES[int(taken[-1])] == 'PMC dead time'
+    at_s = core.trace['t_s'][np.argmax(taken > 0)]
+    # the member taken, as the alarm first named it: a whole number of control periods
+    size = core.trace['drift_adopted_size'][-1]
+    assert size == pytest.approx(round(size / PERIOD_S) * PERIOD_S, abs=1e-12) and size > 0.0
+    run_lockstep(experiment, tmp_path / 'session')
+    models: list[tuple[float, str]] = []
+    with AnyReader([tmp_path / 'session'], default_typestore=typestore()) as reader:
+        topic = [c for c in reader.connections if c.topic == '/diagnostics']
+        for connection, stamp_ns, raw in reader.messages(connections=topic):
+            for status in reader.deserialize(raw, connection.msgtype).status:
+                if status.name.endswith('force_controller'):
+                    models += [(stamp_ns, v.value) for v in status.values if v.key == 'model']
+    assert models and models[0][1] == 'commissioned'
+    said = drift.adopted_text(experiment.controller, drift.DEAD_TIME, size)
+    assert said.startswith('the smc law predicts with') and said.endswith(
+        'ms of dead time until the tool changes')
+    assert models[-1][1] == said, models
+    # said at the first report (once a second, on the simulator's clock) after the law took
+    # it, not before
+    first_said_s = min(stamp for stamp, value in models if value == said) * 1e-9
+    assert at_s - PERIOD_S <= first_said_s <= at_s + 1.0, (first_said_s, at_s)
