@@ -9,10 +9,13 @@ entry into the cut to the first drift alarm, the cause named and its size, and a
 right cause named within 5 s of cutting, and alarms on the unchanged machine. ``--job`` cuts
 every machine's job as that one of the generator's (a taper, say) instead; ``--flow
 identified`` cuts with the identified model under the default law (the sliding mode law),
-no verification::
+no verification; ``--set NODE.PARAM=VALUE`` (repeated) is laid over the settings each job is
+cut with (after commissioning: the verification does not see it)::
 
     .venv/bin/python test/bench/bench_drift.py --machines 8 --seed 16
     .venv/bin/python test/bench/bench_drift.py --machines 6 --seed 16 --job taper
+    .venv/bin/python test/bench/bench_drift.py --machines 6 --seed 29 \
+        --set force_controller.drift_adopt_model=false
 """
 
 from __future__ import annotations
@@ -66,6 +69,8 @@ def main() -> None:
                         help="commissioned (default): the settings the user's flow writes, the "
                              'law closed-loop verification chose with the monitor beside it; '
                              'identified: the identified model under the default law')
+    parser.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
+                        help="laid over the job's settings (repeatable)")
     args = parser.parse_args()
     right = dict.fromkeys(CAUSES[1:], 0)
     false_alarms = 0
@@ -80,6 +85,7 @@ def main() -> None:
             ident, cut_depth = identify_machine(machine)
             identified, monitor = identified_sets(machine, ident, cut_depth)
             sets, law = identified + monitor, 'the default law, identified model'
+        sets = [*sets, *args.set]
         print(f'{machine.describe()}; {law}')
         for cause, change in {'(none)': {}, **drifted(machine)}.items():
             run = replace(machine, drifted=change)

@@ -20,6 +20,8 @@ from hypothesis import strategies as st
 from test_kernel import EXPERIMENTS, FIG8, FILES
 
 from turning_force.commands import robustness
+from turning_force.core.control import drift as drift_monitor
+from turning_force.core.control.law import CS_DRIFT, CS_LAW
 from turning_force.core.errors import NoCutError
 from turning_force.core.estimation.settings import EstimateStatus
 from turning_force.core.experiment import Experiment, load_experiment
@@ -110,7 +112,8 @@ def stepped(e: Experiment) -> CoreRun:
                    reference_now if e.controller.tools_file else e.controller.reference_force_n,
                    block.depth_mm[-1], block.feed_mm_rev[-1],
                    pct, applied, sliding, reach, oscillating, block.spindle_speed_rpm,
-                   int(step.decision.reason), drift, drift_size)
+                   int(step.decision.reason), drift, drift_size,
+                   *drift_monitor.adopted(chain.controller.arrays[1][CS_DRIFT:CS_LAW]))
         plant_rows['spindle_speed_rpm'][k] = block.spindle_speed_rpm
         plant_rows['force_n'][k], plant_rows['depth_mm'][k] = (block.force_n[-1],
                                                                 block.depth_mm[-1])

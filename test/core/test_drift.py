@@ -267,16 +267,19 @@ def test_a_depth_step_starts_a_segment_of_the_window() -> None:
     # no drift was named in 24 s. The step now ends a segment (drift.STEP_SIGMAS), each
     # segment fitted with its own gain and the members compared over all of them: named at
     # 3.2 s of cutting (4.9 s where the step restarted the window, the evidence before it
-    # lost), within a step of the bank.
+    # lost), within a step of the bank. That first reading is the one the law takes into its
+    # model (drift_adopt_model); with the loop on it, the monitor, which still compares with
+    # the identified model, reads later sizes less well (+60 ms at the end).
     machine, sets = generated(37, 4)
     assert machine.job == 'long'
     longer = {'pmc_dead_time_s': 1.5 * machine.plant['pmc_dead_time_s']}
     result = simulate(population.job_experiment(replace(machine, drifted=longer)).with_sets(
         sets))
     named = result.trace['drift_alarm']
-    assert CAUSES[int(named[np.flatnonzero(named)[0]])] == 'PMC dead time', result.drift
+    first = np.flatnonzero(named)[0]
+    assert CAUSES[int(named[first])] == 'PMC dead time', result.drift
     assert result.metrics['drift_alarm_s'] <= 5.0
-    assert result.trace['drift_size'][-1] == pytest.approx(
+    assert result.trace['drift_size'][first] == pytest.approx(
         0.5 * machine.plant['pmc_dead_time_s'], abs=0.01), result.drift
     unchanged = simulate(population.job_experiment(machine).with_sets(sets))
     assert not unchanged.trace['drift_alarm'].any(), unchanged.drift

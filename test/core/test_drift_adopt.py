@@ -8,14 +8,16 @@ their servo or PMC dead time drifted, the loop ends in band; an unchanged machin
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 from test_drift import generated
 
 from turning_force.commands import population
-from turning_force.core.control import ControllerSettings, drift, make_controller
-from turning_force.core.control.laws import mpc
+from turning_force.core.control import ControllerSettings, drift, make_controller, predictor
+from turning_force.core.control.law import OUT_PCT, OUT_SIZE
+from turning_force.core.control.laws import mpc, smc
 from turning_force.core.control.predictor import model_matrices
 from turning_force.core.kernel.simulate import SimulationResult, simulate
 
@@ -71,6 +73,84 @@ def test_a_servo_drift_is_the_banks_member_with_the_commissioned_dead_time() -> 
     # back to the commissioned model (a tool change: the law is reset after)
     assert mpc.adopt(cp, cs, drift.NONE, 0.0)
     assert cs[mpc.S_MODEL] == 0.0 and cs[mpc.S_SHIFT] == 0.0
+
+
+def smc_predictor(dead_time_s: float, servo_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The parameters and state of a sliding mode law with its Smith predictor on a machine
+    model of ``dead_time_s`` and a first-order servo ``servo_s``, at rest at 50 %."""
+    law = make_controller(ControllerSettings(
+        controller='smc', smc_predictor=True, model_dead_time_s=dead_time_s,
+        model_servo_time_constant_s=servo_s, model_cutting_time_constant_s=TAU_C_S,
+        initial_override_pct=50.0))
+    cp, cs, _ = law.arrays
+    return cp, cs
+
+
+def law_run(cp: np.ndarray, cs: np.ndarray, levels: list[float]) -> list[tuple[float, ...]]:
+    """The sliding mode law's request, and the feed z its predictor's machine and design
+    models give the process, for each level sent after a force of 400 N plus the level (a
+    force that moves with the feed: the predictor learns its gain from it)."""
+    out = np.zeros(OUT_SIZE)
+    rows = []
+    for level in levels:
+        smc.step(cp, cs, 400.0 + level, 0.0, out)
+        smc.sent(cp, cs, level)
+        machine = smc.S_MODEL + predictor.S_MX + int(cp[smc.P_MODEL + predictor.M_NX]) - 1
+        design = smc.S_MODEL + predictor.S_DX + int(cp[smc.P_MODEL + predictor.D_NX]) - 1
+        rows.append((float(out[OUT_PCT]), float(cs[machine]), float(cs[design])))
+    return rows
+
+
+# A staircase of levels, each held 3 control periods, over the dead times and lags compared.
+STAIRS = [float(level) for level in np.repeat([60.0, 90.0, 30.0, 120.0, 70.0, 10.0], 3)]
+
+
+def test_the_smc_predictor_adopts_a_dead_time_as_if_commissioned_with_it() -> None:
+    # The drift monitor names the bank's member +30 ms (3 control periods) on a machine
+    # commissioned with 50 ms, after 4 periods of levels sent: 40 ms of them are in the line
+    # with 10 ms of the level held before them. The adopted line repeats that oldest level for
+    # the 30 ms it lacked, which is what a line built for 80 ms holds (40 ms of the held level,
+    # then the 40 ms sent), and the servo has seen only the held level on either: from then on
+    # the law and its predictor are the ones commissioned with 80 ms, step for step, equal to
+    # the last bit (the design model has no dead time: it is the same on both).
+    drifted_cp, drifted_cs = smc_predictor(0.08, SERVO_S)
+    cp, cs = smc_predictor(0.05, SERVO_S)
+    assert law_run(cp, cs, STAIRS[:4]) == law_run(drifted_cp, drifted_cs, STAIRS[:4])
+    assert smc.adopt(cp, cs, drift.DEAD_TIME, 0.03)
+    assert law_run(cp, cs, STAIRS) == law_run(drifted_cp, drifted_cs, STAIRS)
+    # the bank's longest delay (8 periods more: 130 ms) fits the state the Controller made
+    cp, cs = smc_predictor(0.05, SERVO_S)
+    longest = max(drift.DEAD_OFFSETS) * PERIOD_S
+    drifted_cp, drifted_cs = smc_predictor(0.05 + longest, SERVO_S)
+    assert cs.size >= smc.S_MODEL + predictor.STATE + round((0.05 + longest) / 1e-3)
+    assert smc.adopt(cp, cs, drift.DEAD_TIME, longest)
+    assert law_run(cp, cs, STAIRS) == law_run(drifted_cp, drifted_cs, STAIRS)
+    # and a shorter one drops the oldest pending: 20 ms less is the line built for 30 ms
+    drifted_cp, drifted_cs = smc_predictor(0.03, SERVO_S)
+    cp, cs = smc_predictor(0.05, SERVO_S)
+    assert smc.adopt(cp, cs, drift.DEAD_TIME, -0.02)
+    assert law_run(cp, cs, STAIRS) == law_run(drifted_cp, drifted_cs, STAIRS)
+
+
+def test_the_smc_predictor_adopts_a_servo_as_if_commissioned_with_it() -> None:
+    # The monitor names the servo x1.73 (SERVO_RATIO^3): the machine model is the one built
+    # from tau_s x 1.728, and the law is designed for that servo (Park's Eq. 5 with it, the
+    # predictor's design model too): the law commissioned on the drifted servo, to the bit.
+    scale = drift.SERVO_RATIO ** 3
+    drifted_cp, drifted_cs = smc_predictor(0.05, SERVO_S * scale)
+    cp, cs = smc_predictor(0.05, SERVO_S)
+    assert smc.adopt(cp, cs, drift.SERVO, 1.8)   # named x1.8: the bank's nearest, x1.73
+    assert cs[smc.S_MODEL + predictor.S_MODEL] == 1 + drift.SERVO_POWERS.index(3)
+    assert predictor.design_tau_s(cp, cs, smc.P_MODEL, smc.S_MODEL) == SERVO_S * scale
+    assert law_run(cp, cs, STAIRS) == law_run(drifted_cp, drifted_cs, STAIRS)
+    # a drift that is no lag is not the predictor's; a law without one takes none
+    assert not smc.adopt(cp, cs, drift.GAIN, 0.4)
+    plain = make_controller(ControllerSettings(controller='smc', smc_predictor=False))
+    assert not smc.adopt(*plain.arrays[:2], drift.SERVO, 1.8)
+    # back to the commissioned model at a tool change
+    assert smc.adopt(cp, cs, drift.NONE, 0.0)
+    assert cs[smc.S_MODEL + predictor.S_MODEL] == 0.0
+    assert cs[smc.S_MODEL + predictor.S_SHIFT] == 0.0
 
 
 def commissioned(seed: int, index: int, penalty: float, kalman_share: float
@@ -162,3 +242,101 @@ def test_a_servo_drift_is_taken_once_not_each_size_the_monitor_names_after() -> 
     kept = simulate(population.job_experiment(machine).with_sets(
         [*sets, 'force_controller.drift_adopt_model=false']))
     assert kept.metrics['steady_mean_abs_error_n'] > 5.0
+
+
+# bench_drift.py --seed 16, #2: 102 ms of PMC dead time, a 0.34 s first-order servo, g 0.91,
+# tau_c 0.16 s, the 'long' job (a depth step every 3 s); the closed-loop verification chose
+# the sliding mode law with its predictor, the integral surface, lambda 10 and the balance's
+# boundary layer. With the commissioned model kept, a servo slowed x1.8 leaves it ringing
+# (the oscillation alarm's reaction holds it 38 N off) and a dead time +50 % 25 N off; the
+# law commissioned on the drifted servo from the start holds 2.4 N. The adopted member is the
+# bank's, a twentieth off the drift at most (x1.73 for x1.8, +40-50 ms for +51 ms), and the
+# switch comes 2.3-2.6 s into the job: the band (steady <= 5 N, ripple <= 25 N), not that
+# figure, is the bound.
+SMC_CHOSEN = ['force_controller.controller=smc', 'force_controller.smc_surface=integral',
+              'force_controller.smc_lambda_per_s=10.0', 'force_controller.smc_epsilon_n=0.0']
+
+
+@pytest.fixture(scope='module')
+def smc_machine() -> tuple[population.Machine, list[str]]:
+    machine, sets = generated(16, 2)
+    return machine, [*sets, *SMC_CHOSEN]
+
+
+def smc_drifted(machine: population.Machine, change: str) -> dict[str, float]:
+    p = machine.plant
+    return ({'servo_time_constant_s': 1.8 * p['servo_time_constant_s']} if change == 'servo'
+            else {'pmc_dead_time_s': 1.5 * p['pmc_dead_time_s']})
+
+
+@pytest.mark.parametrize('change', ['servo', 'dead time'])
+def test_the_smc_predictor_takes_a_lag_drift_and_the_loop_ends_in_band(
+        smc_machine: tuple[population.Machine, list[str]], change: str) -> None:
+    machine, sets = smc_machine
+    adopted = run(machine, sets, smc_drifted(machine, change), adopt=True)
+    assert 'the smc law predicts with' in adopted.drift, adopted.drift
+    assert adopted.metrics['steady_mean_abs_error_n'] <= 5.0, adopted.metrics
+    assert adopted.metrics['ripple_p2p_n'] <= 25.0, adopted.metrics
+    kept = run(machine, sets, smc_drifted(machine, change), adopt=False)
+    assert kept.metrics['steady_mean_abs_error_n'] > 5.0, kept.metrics
+
+
+def test_a_ring_the_alarm_caught_before_the_drift_was_named_is_let_go_once_it_is(
+        smc_machine: tuple[population.Machine, list[str]]) -> None:
+    # The same machine, its dead time +50 %, the monitor's window 2 s (drift_memory_s): the
+    # drifted loop rings after the second depth step and the oscillation alarm is raised
+    # (4.4 s) before the drift is named (4.4 s, a few periods later). The reaction's detuned
+    # law would hold the loop to the end (25 N steady, the commissioned model kept); the model
+    # taken is the ring's cure, and the reaction lets go: the loop, now on the adopted model,
+    # rings no more (no second alarm) and ends in band.
+    machine, sets = smc_machine
+    late = run(machine, [*sets, 'force_controller.drift_memory_s=2.0'],
+               smc_drifted(machine, 'dead time'), adopt=True)
+    alarm, taken = late.trace['oscillation_alarm'], late.trace['drift_adopted']
+    raised, adopted = np.argmax(alarm > 0), np.argmax(taken > 0)
+    assert alarm.any() and taken.any() and raised < adopted, (raised, adopted)
+    assert drift.CAUSES[int(taken[adopted])] == 'PMC dead time'
+    assert not alarm[adopted:].any()   # let go at the adoption, not raised again
+    assert late.metrics['oscillation_alarms'] == 1.0
+    assert late.metrics['steady_mean_abs_error_n'] <= 5.0, late.metrics
+    assert late.metrics['ripple_p2p_n'] <= 25.0, late.metrics
+
+
+def test_the_graph_says_which_model_the_law_predicts_with(
+        smc_machine: tuple[population.Machine, list[str]], tmp_path: Path) -> None:
+    # The node graph in lock-step on the same machine, its dead time +50 %: the core loop's
+    # trace says from when the law predicts with which member (drift_adopted), and
+    # force_controller's /diagnostics, which the session records, says it in words under
+    # 'model' ('commissioned' before).
+    from rosbags.highlevel import AnyReader
+
+    from turning_force.commands.run import run_lockstep
+    from turning_force.session.bag import typestore
+
+    machine, sets = smc_machine
+    experiment = population.job_experiment(replace(machine, drifted=smc_drifted(
+        machine, 'dead time'))).with_sets([*sets, 'experiment.duration_s=4.0'])
+    core = simulate(experiment)
+    taken = core.trace['drift_adopted']
+    assert taken.any() and drift.CAUSES[int(taken[-1])] == 'PMC dead time'
+    at_s = core.trace['t_s'][np.argmax(taken > 0)]
+    # the member taken, as the alarm first named it: a whole number of control periods
+    size = core.trace['drift_adopted_size'][-1]
+    assert size == pytest.approx(round(size / PERIOD_S) * PERIOD_S, abs=1e-12) and size > 0.0
+    run_lockstep(experiment, tmp_path / 'session')
+    models: list[tuple[float, str]] = []
+    with AnyReader([tmp_path / 'session'], default_typestore=typestore()) as reader:
+        topic = [c for c in reader.connections if c.topic == '/diagnostics']
+        for connection, stamp_ns, raw in reader.messages(connections=topic):
+            for status in reader.deserialize(raw, connection.msgtype).status:
+                if status.name.endswith('force_controller'):
+                    models += [(stamp_ns, v.value) for v in status.values if v.key == 'model']
+    assert models and models[0][1] == 'commissioned'
+    said = drift.adopted_text(experiment.controller, drift.DEAD_TIME, size)
+    assert said.startswith('the smc law predicts with') and said.endswith(
+        'ms of dead time until the tool changes')
+    assert models[-1][1] == said, models
+    # said at the first report (once a second, on the simulator's clock) after the law took
+    # it, not before
+    first_said_s = min(stamp for stamp, value in models if value == said) * 1e-9
+    assert at_s - PERIOD_S <= first_said_s <= at_s + 1.0, (first_said_s, at_s)

@@ -365,13 +365,16 @@ def test_a_commissioned_reaction_does_not_cycle_after_a_dead_time_drift():
     # model's half-period (0.33 s) as the least, its ripple is about that of the machine
     # unchanged (91 N against 85 N; the job's x3 depth steps on a 0.2 s dead time leave some
     # in the last second before each change): 150 N bounds it with room, a ninth of the
-    # cycle's.
+    # cycle's. The reaction is what is tested: the law keeps the commissioned model (with
+    # drift_adopt_model, the default, the monitor names the drift at 3.2 s, the law takes it
+    # and the reaction lets go: test_drift_adopt.py).
     machine = population.draw(6, 37)[4]
     machine = replace(machine, drift='', drifted={})
     ident, cut_depth = population.identify_machine(machine)
     identified, monitor = population.identified_sets(machine, ident, cut_depth)
     drifted = replace(machine, drifted={'pmc_dead_time_s': 1.5 * machine.plant['pmc_dead_time_s']})
-    result = simulate(population.job_experiment(drifted).with_sets(identified + monitor))
+    result = simulate(population.job_experiment(drifted).with_sets(
+        [*identified, *monitor, 'force_controller.drift_adopt_model=false']))
     assert result.metrics['oscillation_alarms'] == 1.0
     assert result.metrics['ripple_p2p_n'] <= 150.0
 

@@ -38,7 +38,7 @@ from turning_force.core.codecache import cache_dir, cache_is_warm, installed_law
 
 __all__ = ['AHEAD', 'INTERPRETED', 'JUST_IN_TIME', 'Arr', 'activate', 'active', 'build_ahead',
            'compiled', 'delayed', 'entry', 'isclose', 'mode', 'npsign', 'pairwise_sum', 'pymax',
-           'pymin', 'pymod', 'quantise']
+           'pymin', 'pymod', 'quantise', 'requeue']
 
 _F = TypeVar('_F', bound=Callable[..., Any])
 Arr = np.ndarray   # float64, C-contiguous: what the entry points' signatures say
@@ -438,6 +438,24 @@ def delayed(state: np.ndarray, queue_at: int, index_slot: int, length: int,
     state[queue_at + q] = value
     state[index_slot] = (q + 1) % length
     return out
+
+
+@compiled
+def requeue(state: np.ndarray, queue_at: int, index_slot: int, was: int, length: int,
+            held: float) -> None:
+    """A dead time of ``was`` samples (:func:`delayed`) made ``length`` long, the values
+    pending in their order: for a longer one the oldest repeated before them, for a shorter
+    one the oldest dropped (none pending: ``held``). The line starts again at its first
+    place: a model of the PMC's dead time taking the one the drift monitor named."""
+    at = int(state[index_slot])
+    pending = np.empty(max(was, 1))
+    if was <= 0:
+        pending[0] = held
+    for j in range(was):
+        pending[j] = state[queue_at + (at + j) % was]
+    for j in range(length):
+        state[queue_at + j] = pending[max(j - (length - pending.size), 0)]
+    state[index_slot] = 0.0
 
 
 @compiled

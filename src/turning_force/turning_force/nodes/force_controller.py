@@ -61,9 +61,11 @@ class ForceControllerNode(Node):
         self.diagnostics = Diagnostics(self)
         self.diagnostics.watch('force/estimate', stale_after_s=5 * settings.control_period_s)
         self.diagnostics.set_value('controller', settings.controller)
+        self.diagnostics.set_value('model', 'commissioned')
         self._reachable = True
         self._oscillating = False
         self._drift = 0
+        self._model = ''
         self.spindle = SpindleSpeedInput(self, self.diagnostics, settings.spindle_speed_stale_s,
                                          settings.spindle_speed_rpm)
         self._publisher = self.create_publisher(FeedCommand, 'control/feed_command', STREAM_DEPTH)
@@ -146,10 +148,14 @@ class ForceControllerNode(Node):
                 text = (f'the loop oscillates: the force error swings by '
                         f'{settings.oscillation_swing_n:g} N or more, again and again; '
                         f'oscillation_reaction {settings.oscillation_reaction} from '
-                        f'{out.override_pct:g} %, until the run ends or the tool changes')
+                        f'{out.override_pct:g} %, until the run ends or the tool changes '
+                        '(or the law takes a lag drift the drift monitor names)')
                 if settings.oscillation_reaction == 'none':
                     text = text.split(';')[0] + '; oscillation_reaction none: regulating on'
                 self.diagnostics.warn(text, log=True)
+            elif self._controller.model:   # let go: the law took a lag drift (control.update)
+                self.get_logger().info(f'oscillation reaction let go: {self._controller.model} '
+                                       '(drift_adopt_model); the loop is watched afresh')
         if out.drift != self._drift:   # the drift monitor named a cause (control.drift)
             self._drift = out.drift
             text = self._controller.drift
@@ -157,6 +163,11 @@ class ForceControllerNode(Node):
             if text:
                 self.diagnostics.warn(f'the machine drifted from its identified model: {text}',
                                       log=True)
+        if self._controller.model != self._model:   # the law took a lag drift (drift_adopt_model)
+            self._model = self._controller.model
+            self.diagnostics.set_value('model', self._model or 'commissioned')
+            if self._model:
+                self.get_logger().info(f'{self._model} (drift_adopt_model)')
         if out.reachable != self._reachable:
             self._reachable = out.reachable
             self.diagnostics.set_value('reference_reachable', out.reachable)

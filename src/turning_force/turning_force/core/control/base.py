@@ -156,6 +156,12 @@ class Controller:
         return drift.drift_text(self.settings, *drift.alarm(monitor),
                                 adopted=drift.adopted(monitor))
 
+    @property
+    def model(self) -> str:
+        """The model the law predicts with, in words, where it took a lag drift the drift
+        monitor named into it (:func:`.drift.adopted_text`; '': the commissioned model)."""
+        return drift.adopted_text(self.settings, *drift.adopted(self._state[CS_DRIFT:CS_LAW]))
+
     def rezeroed(self, scale: float) -> None:
         """The estimator re-zeroed the friction in air to ``scale`` x calibrated (the drift
         monitor's measurement of the friction, :func:`.drift.drift_rezeroed`)."""

@@ -69,10 +69,12 @@ is read and corrected a window later.
 
 A lag drift (PMC dead time, servo) the monitor names is a member of its bank: where
 ``drift_adopt_model`` is on, a law that predicts with the machine's model (the predictive law,
-:mod:`.laws.mpc`) takes that member's dead time and servo into its own model from the alarm
-on, until the tool changes (``update.controller_update`` calls the law's ``adopt``); the alarm
-says so (:func:`adopted`, :func:`drift_text`). The monitor itself goes on comparing the
-machine with the identified model.
+:mod:`.laws.mpc`; the sliding mode law's Smith predictor, :mod:`.predictor`) takes that
+member's dead time and servo into its own model from the alarm on, until the tool changes
+(``update.controller_update`` calls the law's ``adopt``); the alarm says so (:func:`adopted`,
+:func:`adopted_text`, :func:`drift_text`), and so do the core loop's trace (``drift_adopted``,
+``drift_adopted_size``) and ``force_controller``'s ``/diagnostics`` (``model``). The monitor
+itself goes on comparing the machine with the identified model.
 """
 
 from __future__ import annotations
@@ -92,7 +94,8 @@ if TYPE_CHECKING:
     from turning_force.core.identify import Identification
     from turning_force.core.plant.settings import DepthProfile
 
-__all__ = ['CAUSES', 'CORRECTIONS', 'PARAMS', 'STATE', 'adopted', 'alarm', 'drift_applied',
+__all__ = ['CAUSES', 'CORRECTIONS', 'PARAMS', 'STATE', 'adopted', 'adopted_text', 'alarm',
+           'drift_applied',
            'drift_correction', 'drift_fill', 'drift_rezeroed', 'drift_step', 'drift_text',
            'drift_tool', 'first_cut', 'identified', 'model_error']
 
@@ -838,12 +841,16 @@ def drift_text(c: ControllerBase, cause: int, size: float, std: float, alt: floa
                      're-zeroes the friction and tells)')
     else:
         return ''
-    taken, taken_size = adopted
-    if taken == DEAD_TIME:
-        what += (f'; the {c.controller} law predicts with '
-                 f'{(c.model_dead_time_s + taken_size) * 1e3:.0f} ms of dead time until the '
-                 'tool changes')
-    elif taken == SERVO:
-        what += (f'; the {c.controller} law predicts with the servo x{taken_size:.2f} until '
-                 'the tool changes')
-    return f'{what}: re-commission (identify this session)'
+    taken = adopted_text(c, *adopted)
+    return f'{what}{"; " if taken else ""}{taken}: re-commission (identify this session)'
+
+
+def adopted_text(c: ControllerBase, cause: int, size: float) -> str:
+    """The model the law predicts with, where it took a lag drift into it (:func:`adopted`;
+    '' where it did not: the commissioned model)."""
+    if cause == DEAD_TIME:
+        return (f'the {c.controller} law predicts with {(c.model_dead_time_s + size) * 1e3:.0f} '
+                'ms of dead time until the tool changes')
+    if cause == SERVO:
+        return f'the {c.controller} law predicts with the servo x{size:.2f} until the tool changes'
+    return ''

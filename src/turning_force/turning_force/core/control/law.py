@@ -18,8 +18,9 @@ names it under the ``turning_force.laws`` entry point group). It holds:
   ``finite(cp, cs) -> bool`` (whether the state is fit to go on: the guard resets the law
   otherwise), ``sent(cp, cs, level)`` (the PMC level sent, once the quantiser chose it) and
   ``adopt(cp, cs, cause, size) -> bool`` (the drift monitor named a lag drift, a member of its
-  bank, :mod:`.drift`: whether the law took it into its model; cause ``drift.NONE``: back to
-  the commissioned model, at a tool change, before ``reset``);
+  bank, :mod:`.drift`: whether the law took it into its model, as :mod:`.laws.mpc` and the
+  Smith predictor of :mod:`.laws.smc` do; cause ``drift.NONE``: back to the commissioned
+  model, at a tool change, before ``reset``);
 - ``LAW = Law(name, Settings, fill, summary)`` (``closed_loop=False`` for a law that ignores
   the force: the oscillation alarm does not watch it).
 
@@ -320,8 +321,11 @@ class ControllerBase(Settings):
         choices=drift.CORRECTIONS)
     drift_adopt_model: bool = setting(
         True, 'Drift monitor: where it names a PMC dead time or servo drift, a law that '
-        "predicts with the machine's model (mpc) takes the named dead time and servo into its "
-        'own model from then on, until the tool changes; off: the alarm only says so')
+        "predicts with the machine's model (mpc; smc with smc_predictor, its design too) takes "
+        'the named dead time and servo into its own model from then on, until the tool '
+        'changes, and an oscillation alarm raised before lets go (the ring was the drifted '
+        "loop's, the model taken its cure; the detector watches afresh); off: the alarm only "
+        'says so')
 
     def check(self) -> None:
         super().check()

@@ -18,9 +18,25 @@ it was designed for. With no dead time and a first-order servo the two models ar
 ``F_p = F`` exactly. ``k`` is smoothed with ``smc_gain_time_constant_s`` and learned only while
 cutting (the force above ``ENGAGED_FRACTION`` of the reference) and the model feeds.
 
-The models and the predictor run compiled (:func:`predict`, :func:`reset`, :func:`send`), in
-a law's arrays from the offsets it passes (``pb``, ``sb``): ``PARAMS`` parameters
-(:func:`params`) and ``STATE`` slots plus the dead time's queue.
+A machine that drifted from the model (a slower servo, a longer PMC dead time) is predicted
+wrong. Where the drift monitor (:mod:`.drift`) names such a lag drift, a member of its bank,
+the machine model takes that member's dead time and servo from then on (:func:`adopt`) until
+the tool changes, as the predictive law does (:mod:`.laws.mpc`), and the design model, with the
+law (:func:`design_tau_s`), the servo the law would have been designed for on the drifted
+machine (:func:`design_time_constant_s` of it): the law runs as if commissioned with the
+member. Only the machine model taken in, the law stays designed for a servo faster than the
+machine's, and model matching then hands it a plant that answers a depth step the slower
+servo's way through the predictor's correction: bench_drift.py seed 16 #2 (a 0.34 s servo
+slowed x1.8) held 21.1 N steady so, 3.7 N with the design taken too (2.4 N commissioned on
+the drifted servo from the start). The servo's ``phi`` and ``gamma`` are worked out
+beforehand for every servo scale of the bank (:data:`SCALES`, :func:`model_bank`: no matrix
+exponential runs compiled), and the dead time's queue has room for the bank's longest delay;
+a new dead time keeps the levels pending in their order
+(:func:`~turning_force.core.compiled.requeue`).
+
+The models and the predictor run compiled (:func:`predict`, :func:`reset`, :func:`send`,
+:func:`adopt`), in a law's arrays from the offsets it passes (``pb``, ``sb``): ``PARAMS``
+parameters (:func:`params`) and ``STATE`` slots plus the dead time's queue.
 """
 
 from __future__ import annotations
@@ -31,10 +47,19 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from turning_force.core.compiled import compiled, delayed
+from turning_force.core.compiled import compiled, delayed, pymax, pymin, requeue
+from turning_force.core.control.drift import (
+    DEAD_OFFSETS,
+    DEAD_TIME,
+    NONE,
+    SERVO,
+    SERVO_POWERS,
+    SERVO_RATIO,
+)
 from turning_force.core.lti import expm
 
-__all__ = ['ENGAGED_FRACTION', 'MODEL_STEP_S', 'PARAMS', 'STATE', 'design_time_constant_s',
+__all__ = ['ENGAGED_FRACTION', 'MODEL_SIZE', 'MODEL_STEP_S', 'PARAMS', 'SCALES', 'STATE',
+           'adopt', 'design_tau_s', 'design_time_constant_s', 'member', 'model_bank',
            'model_matrices', 'params', 'predict', 'reset', 'send']
 
 FloatArray = npt.NDArray[np.float64]
@@ -44,16 +69,29 @@ MODEL_STEP_S = 1e-3
 # The process gain is learned only while cutting: above this share of the reference force.
 ENGAGED_FRACTION = 0.05
 
-# Parameters, from the law's offset pb: each model's order, phi (3 x 3) and gamma (3); the
-# queue's length, model steps a control period, the gain's smoothing weight, its first value,
-# tau_c, the engaged fraction.
-M_NX, M_PHI, M_GAMMA, D_NX, D_PHI, D_GAMMA = 0, 1, 10, 13, 14, 23
-Q_LEN, Q_STEPS, Q_WEIGHT, Q_GAIN0, Q_TAU_C, Q_ENGAGED = range(26, 32)
-PARAMS = 32
+# The servo models a machine model may run on: the commissioned one, then the drift monitor's
+# bank's servo members (time scales SERVO_RATIO^k), each phi (3 x 3) and gamma (3).
+SCALES = (1.0, *(SERVO_RATIO ** k for k in SERVO_POWERS))
+MODEL_SIZE = 12
+
+# Parameters, from the law's offset pb: each model's order; the queue's commissioned length,
+# model steps a control period, the gain's smoothing weight, its first value, tau_c, the
+# engaged fraction, the queue's room (its longest length); per servo scale of SCALES: the
+# scale, the design's time constant, the machine model's phi and gamma (:func:`model_bank`),
+# the design model's.
+M_NX, D_NX = 0, 1
+Q_LEN, Q_STEPS, Q_WEIGHT, Q_GAIN0, Q_TAU_C, Q_ENGAGED, Q_ROOM = range(2, 9)
+M_SCALES = 9
+D_TAUS = M_SCALES + len(SCALES)
+M_BANK = D_TAUS + len(SCALES)   # servo model i: phi from M_BANK + MODEL_SIZE i, then gamma
+D_BANK = M_BANK + MODEL_SIZE * len(SCALES)   # its design model likewise
+PARAMS = D_BANK + MODEL_SIZE * len(SCALES)
 # State, from the law's offset sb: the process gain k, the machine's x (3), the design's x
-# (3), the queue's next place; the queue (Q_LEN slots) follows.
-S_GAIN, S_MX, S_DX, S_QIDX = 0, 1, 4, 7
-STATE = 8
+# (3), the queue's next place, the machine model's servo (its index in SCALES) and the model
+# steps added to its dead time (0, 0: the commissioned model, :func:`adopt`); the queue
+# (Q_ROOM slots) follows.
+S_GAIN, S_MX, S_DX, S_QIDX, S_MODEL, S_SHIFT = 0, 1, 4, 7, 8, 9
+STATE = 10
 
 
 def design_time_constant_s(servo_model: str, time_constant_s: float, natural_freq_rad_s: float,
@@ -111,28 +149,102 @@ def model_matrices(servo_model: str, time_constant_s: float, natural_freq_rad_s:
     return _discretise(a, b, step_s)
 
 
+def _packed(phi: FloatArray, gamma: FloatArray) -> FloatArray:
+    """A model's phi (rows of 3) and gamma (from 9), MODEL_SIZE values."""
+    packed = np.zeros(MODEL_SIZE)
+    nx = gamma.size
+    for i in range(nx):
+        packed[3 * i:3 * i + nx] = phi[i]
+    packed[9:9 + nx] = gamma
+    return packed
+
+
+def model_bank(servo_model: str, time_constant_s: float, natural_freq_rad_s: float,
+               damping: float, cutting_time_constant_s: float, step_s: float) -> FloatArray:
+    """The machine model at ``step_s`` (:func:`model_matrices`) for every servo scale of
+    :data:`SCALES` (a slower servo: ``tau_s`` x scale, or ``w_n`` / scale), each packed in
+    MODEL_SIZE values: phi in rows of 3, gamma from 9."""
+    return np.concatenate([_packed(*model_matrices(
+        servo_model, time_constant_s * scale, natural_freq_rad_s / scale, damping,
+        cutting_time_constant_s, step_s=step_s)) for scale in SCALES])
+
+
+def _design_bank(servo_model: str, time_constant_s: float, natural_freq_rad_s: float,
+                 damping: float, cutting_time_constant_s: float,
+                 design_tau_s: float) -> tuple[list[float], FloatArray]:
+    """The design's time constant and its model for every servo scale of :data:`SCALES`:
+    ``design_tau_s`` for the commissioned servo, and for each member of the bank the one
+    :func:`design_time_constant_s` gives for its servo."""
+    taus = [design_tau_s, *(design_time_constant_s(
+        servo_model, time_constant_s * scale, natural_freq_rad_s / scale, damping,
+        cutting_time_constant_s) for scale in SCALES[1:])]
+    return taus, np.concatenate([_packed(*model_matrices(
+        'first_order', tau, 1.0, 1.0, cutting_time_constant_s)) for tau in taus])
+
+
 def params(servo_model: str, time_constant_s: float, natural_freq_rad_s: float, damping: float,
            cutting_time_constant_s: float, design_tau_s: float, dead_time_s: float,
            control_period_s: float, gain_time_constant_s: float,
            gain0: float) -> tuple[list[float], int]:
-    """The predictor's parameters (``PARAMS``) and the length of its dead time's queue."""
+    """The predictor's parameters (``PARAMS``) and the length of its dead time's queue, room
+    for the drift monitor's longest delay included."""
     p = np.zeros(PARAMS)
-    machine = model_matrices(servo_model, time_constant_s, natural_freq_rad_s, damping,
-                             cutting_time_constant_s)
-    design = model_matrices('first_order', design_tau_s, 1.0, 1.0, cutting_time_constant_s)
-    for (phi, gamma), nx, phi_at, gamma_at in ((machine, M_NX, M_PHI, M_GAMMA),
-                                               (design, D_NX, D_PHI, D_GAMMA)):
-        size = gamma.size
-        p[nx] = size
-        for i in range(size):
-            p[phi_at + 3 * i:phi_at + 3 * i + size] = phi[i]
-        p[gamma_at:gamma_at + size] = gamma
+    p[M_NX] = 2 if servo_model == 'first_order' else 3
+    p[D_NX] = 2
     queue = round(dead_time_s / MODEL_STEP_S)
-    p[Q_LEN] = queue
+    room = queue + round(max(DEAD_OFFSETS) * control_period_s / MODEL_STEP_S)
+    p[Q_LEN], p[Q_ROOM] = queue, room
     p[Q_STEPS] = max(1, round(control_period_s / MODEL_STEP_S))
     p[Q_WEIGHT] = 1.0 - math.exp(-control_period_s / gain_time_constant_s)
     p[Q_GAIN0], p[Q_TAU_C], p[Q_ENGAGED] = gain0, cutting_time_constant_s, ENGAGED_FRACTION
-    return p.tolist(), queue
+    p[M_SCALES:D_TAUS] = SCALES
+    p[M_BANK:D_BANK] = model_bank(servo_model, time_constant_s, natural_freq_rad_s, damping,
+                                  cutting_time_constant_s, MODEL_STEP_S)
+    p[D_TAUS:M_BANK], p[D_BANK:] = _design_bank(servo_model, time_constant_s,
+                                                natural_freq_rad_s, damping,
+                                                cutting_time_constant_s, design_tau_s)
+    return p.tolist(), room
+
+
+@compiled
+def member(cp: np.ndarray, scales_at: int, cause: int, size: float,
+           step_s: float) -> tuple[float, int]:
+    """The member of the drift monitor's bank it named (:mod:`.drift`: ``cause``, ``size``):
+    the steps of ``step_s`` it adds to the dead time, and its servo model's index in
+    :data:`SCALES` (the nearest scale by its log; the scales at ``scales_at`` in ``cp``).
+    (0, 0): the commissioned model (``NONE``, or a cause that is no lag)."""
+    if cause == DEAD_TIME:
+        return float(round(size / step_s)), 0
+    model = 0
+    if cause == SERVO:
+        gap = math.inf
+        for i in range(1, len(SCALES)):
+            off = abs(math.log(cp[scales_at + i] / size))
+            if off < gap:
+                model, gap = i, off
+    return 0.0, model
+
+
+@compiled
+def _length(cp: np.ndarray, cs: np.ndarray, pb: int, sb: int) -> int:
+    """The dead time the machine model is on [model steps]: commissioned, or adopted."""
+    return int(cp[pb + Q_LEN] + cs[sb + S_SHIFT])
+
+
+@compiled
+def adopt(cp: np.ndarray, cs: np.ndarray, pb: int, sb: int, cause: int, size: float,
+          held: float) -> bool:
+    """The machine model takes the member of the drift monitor's bank it named, and the design
+    model the servo the law would be designed for with it (the module's text; ``NONE``: the
+    commissioned models, at a tool change, before :func:`reset`); the levels pending keep
+    their order (none pending: ``held``). Whether it took it (a lag drift, or none)."""
+    if cause != NONE and cause != DEAD_TIME and cause != SERVO:
+        return False
+    shift, model = member(cp, pb + M_SCALES, cause, size, MODEL_STEP_S)
+    length = pymin(pymax(cp[pb + Q_LEN] + shift, 0.0), cp[pb + Q_ROOM])
+    requeue(cs, sb + STATE, sb + S_QIDX, _length(cp, cs, pb, sb), int(length), held)
+    cs[sb + S_MODEL], cs[sb + S_SHIFT] = model, length - cp[pb + Q_LEN]
+    return True
 
 
 @compiled
@@ -158,6 +270,13 @@ def _model_advance(cp: np.ndarray, cs: np.ndarray, x: int, nx: int, phi: int, ga
 
 
 @compiled
+def design_tau_s(cp: np.ndarray, cs: np.ndarray, pb: int, sb: int) -> float:
+    """The servo time constant the law is designed for now: the commissioned design's, or the
+    one for the servo adopted (:func:`adopt`)."""
+    return cp[pb + D_TAUS + int(cs[sb + S_MODEL])]
+
+
+@compiled
 def reset(cp: np.ndarray, cs: np.ndarray, pb: int, sb: int, held: float) -> None:
     """Both models at rest at the held override, the queue full of it, the gain its first
     value."""
@@ -165,7 +284,7 @@ def reset(cp: np.ndarray, cs: np.ndarray, pb: int, sb: int, held: float) -> None
     _model_reset(cs, sb + S_MX, int(cp[pb + M_NX]), held)
     _model_reset(cs, sb + S_DX, int(cp[pb + D_NX]), held)
     cs[sb + S_QIDX] = 0.0
-    for i in range(int(cp[pb + Q_LEN])):
+    for i in range(_length(cp, cs, pb, sb)):
         cs[sb + STATE + i] = held
 
 
@@ -188,11 +307,13 @@ def predict(cp: np.ndarray, cs: np.ndarray, pb: int, sb: int, reference: float, 
 
 @compiled
 def send(cp: np.ndarray, cs: np.ndarray, pb: int, sb: int, level: float) -> None:
-    """The level sent, into both models for one control period: the machine's through the
-    PMC's dead time."""
-    mnx, dnx, qlen = int(cp[pb + M_NX]), int(cp[pb + D_NX]), int(cp[pb + Q_LEN])
+    """The level sent, into both models for one control period: the machine's (the servo and
+    dead time in use, :func:`adopt`) through the PMC's dead time."""
+    mnx, dnx, qlen = int(cp[pb + M_NX]), int(cp[pb + D_NX]), _length(cp, cs, pb, sb)
+    model = pb + M_BANK + MODEL_SIZE * int(cs[sb + S_MODEL])
+    design = pb + D_BANK + MODEL_SIZE * int(cs[sb + S_MODEL])
     for _ in range(int(cp[pb + Q_STEPS])):
         servo_in = delayed(cs, sb + STATE, sb + S_QIDX, qlen, level)
-        _model_advance(cp, cs, sb + S_MX, mnx, pb + M_PHI, pb + M_GAMMA, servo_in)
+        _model_advance(cp, cs, sb + S_MX, mnx, model, model + 9, servo_in)
     for _ in range(int(cp[pb + Q_STEPS])):
-        _model_advance(cp, cs, sb + S_DX, dnx, pb + D_PHI, pb + D_GAMMA, level)
+        _model_advance(cp, cs, sb + S_DX, dnx, design, design + 9, level)

@@ -21,7 +21,7 @@ from turning_force.core.compiled import (
     compiled,
     entry,
 )
-from turning_force.core.control.drift import drift_correction
+from turning_force.core.control.drift import DS_ADOPTED, DS_ADOPTED_SIZE, drift_correction
 from turning_force.core.control.law import (
     C_REF,
     CS_DRIFT,
@@ -151,15 +151,18 @@ def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
 
 @compiled
 def _trace_row(trace: np.ndarray, k: int, t_end: float, truth: np.ndarray, n: int,
-               es: np.ndarray, cp: np.ndarray, last: np.ndarray, applied: float,
-               reason: float) -> None:
-    """Row k of the core loop's trace (core/simulate.py TRACE_NAMES)."""
+               es: np.ndarray, cp: np.ndarray, cs: np.ndarray, last: np.ndarray,
+               applied: float, reason: float) -> None:
+    """Row k of the core loop's trace (core/simulate.py TRACE_NAMES); the controller's state
+    ``cs`` gives the model its law predicts with (the drift monitor's, .control.drift)."""
     trace[k, 0], trace[k, 1], trace[k, 2] = t_end, truth[0, n - 1], es[ES_F]
     trace[k, 3], trace[k, 4], trace[k, 5] = es[ES_R], cp[C_REF], truth[1, n - 1]
     trace[k, 6], trace[k, 7], trace[k, 8] = truth[2, n - 1], last[0], applied
     trace[k, 9], trace[k, 10], trace[k, 11] = last[1], last[2], last[3]
     trace[k, 12], trace[k, 13] = truth[3, n - 1], reason
     trace[k, 14], trace[k, 15] = last[4], last[5]
+    trace[k, 16] = cs[CS_DRIFT + DS_ADOPTED]
+    trace[k, 17] = cs[CS_DRIFT + DS_ADOPTED_SIZE]
 
 
 @compiled
@@ -221,7 +224,8 @@ def _closed_loop(pp: Arr, ps: Arr, times: Arr, depths: Arr, noise_u: Arr, noise_
         if keep:
             t0s[k] = t0
             _chain_row(rows, k, es, acted, out, cp, gs, dec)
-        _trace_row(trace, k, t0 + n * dt, truth, n, es, cp, last, applied, dec[DEC_REASON])
+        _trace_row(trace, k, t0 + n * dt, truth, n, es, cp, cs, last, applied,
+                   dec[DEC_REASON])
         applied = dec[DEC_APPLIED]
     return applied
 

@@ -45,6 +45,8 @@ TRACE_NAMES = (
     'override_reason',      # why the override answering the block is what it is (Reason)
     'drift_alarm',          # what the drift monitor found drifted (control.drift.CAUSES), 0 none
     'drift_size',           # by how much (relative; seconds for the dead time)
+    'drift_adopted',        # the lag drift the law predicts with (drift.CAUSES), 0 commissioned
+    'drift_adopted_size',   # the member of the monitor's bank (relative; seconds added)
 )
 
 

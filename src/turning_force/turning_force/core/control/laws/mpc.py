@@ -50,10 +50,12 @@ cut it asks for the level that would give the reference at the ``k`` last learne
 A machine that drifted from the model (a slower servo, a longer PMC dead time) is predicted
 wrong, and the law then rings or limit-cycles. Where the drift monitor (:mod:`..drift`) names
 such a lag drift, a member of its bank, the law takes that member's dead time and servo into
-its model (:func:`adopt`) until the tool changes: the servo's ``phi`` and ``gamma`` are worked
-out here for every servo scale of the bank (no matrix exponential runs compiled), and the dead
-time's queue holds the bank's longest delay; a new dead time keeps the levels pending in their
-order (the oldest repeated for a longer delay, the oldest dropped for a shorter one).
+its model (:func:`adopt`) until the tool changes, as the sliding mode law's Smith predictor
+does (:mod:`..predictor`): the servo's ``phi`` and ``gamma`` are worked out here for every servo
+scale of the bank (:func:`..predictor.model_bank`: no matrix exponential runs compiled), and the
+dead time's queue holds the bank's longest delay; a new dead time keeps the levels pending in
+their order (the oldest repeated for a longer delay, the oldest dropped for a shorter one:
+:func:`~turning_force.core.compiled.requeue`).
 """
 
 from __future__ import annotations
@@ -64,16 +66,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from turning_force.core.compiled import compiled, pymax
+from turning_force.core.compiled import compiled, pymax, requeue
 from turning_force.core.control import predictor
-from turning_force.core.control.drift import (
-    DEAD_OFFSETS,
-    DEAD_TIME,
-    NONE,
-    SERVO,
-    SERVO_POWERS,
-    SERVO_RATIO,
-)
+from turning_force.core.control.drift import DEAD_OFFSETS, DEAD_TIME, NONE, SERVO
 from turning_force.core.control.law import (
     C_LAW,
     C_PERIOD,
@@ -86,6 +81,7 @@ from turning_force.core.control.law import (
     ControllerBase,
     Law,
 )
+from turning_force.core.control.predictor import MODEL_SIZE, SCALES
 from turning_force.core.pmc.overrides import get_table
 from turning_force.core.settings import setting
 
@@ -118,10 +114,8 @@ class Settings(ControllerBase):
                                        f'({self.control_period_s} s)')
 
 
-# The servo models the law may predict with: the commissioned one, then the drift monitor's
-# bank's servo members (time scales SERVO_RATIO^k), each phi (3 x 3) and gamma (3) at the period.
-SCALES = (1.0, *(SERVO_RATIO ** k for k in SERVO_POWERS))
-MODEL_SIZE = 12
+# The servo models the law may predict with (predictor.SCALES): the commissioned one, then the
+# drift monitor's bank's servo members, each phi (3 x 3) and gamma (3) at the period.
 # Parameters (from C_LAW): exponent g, rho, the gain's weight, its first value, the engaged
 # fraction, dead time D and horizon H [periods], the lowest and highest level, the model's
 # order, the trend's weight (0: none), the calm periods it waits for after a jump, the servo
@@ -149,17 +143,10 @@ def fill(settings: ControllerBase) -> tuple[Sequence[float], int]:
     assert isinstance(settings, Settings)
     c = settings
     period = c.control_period_s
-    models = np.zeros(MODEL_SIZE * len(SCALES))
-    for i, scale in enumerate(SCALES):   # a slower servo: tau_s x scale, or w_n / scale
-        phi, gamma = predictor.model_matrices(
-            c.model_servo_model, c.model_servo_time_constant_s * scale,
-            c.model_servo_natural_freq_rad_s / scale, c.model_servo_damping,
-            c.model_cutting_time_constant_s, step_s=period)
-        nx = gamma.size
-        at = MODEL_SIZE * i
-        for row in range(nx):
-            models[at + 3 * row:at + 3 * row + nx] = phi[row]
-        models[at + 9:at + 9 + nx] = gamma
+    models = predictor.model_bank(c.model_servo_model, c.model_servo_time_constant_s,
+                                  c.model_servo_natural_freq_rad_s, c.model_servo_damping,
+                                  c.model_cutting_time_constant_s, period)
+    nx = 2 if c.model_servo_model == 'first_order' else 3
     table = get_table(c.override_table)
     levels = (np.linspace(table.min_pct, table.max_pct, CONTINUOUS_LEVELS) if table.continuous
               else np.array(table.levels_pct, dtype=np.float64))
@@ -221,42 +208,19 @@ def _advance(cp: np.ndarray, model: int, x: np.ndarray, nx: int, level: float) -
 def adopt(cp: np.ndarray, cs: np.ndarray, cause: int, size: float) -> bool:
     """The drift monitor named a lag drift, ``size`` the member of its bank (:mod:`..drift`):
     the model predicts with that member's servo and dead time from now on (the module's
-    text); the levels pending keep their order (:func:`_requeue`). ``NONE``: the
-    commissioned model (a tool change: the law is reset after). Whether the law took it."""
+    text, :func:`..predictor.member`); the levels pending keep their order
+    (:func:`~turning_force.core.compiled.requeue`). ``NONE``: the commissioned model (a tool
+    change: the law is reset after). Whether the law took it."""
     if cause == NONE:
         cs[S_MODEL], cs[S_SHIFT] = 0.0, 0.0
         return True
-    if cause == DEAD_TIME:
-        shift = pymax(round(size / cp[C_PERIOD]), -cp[P_DEAD])
-        model = 0
-    elif cause == SERVO:
-        shift, model, gap = 0.0, 0, math.inf
-        for i in range(1, len(SCALES)):   # the bank's member: the nearest scale
-            off = abs(math.log(cp[P_SCALES + i] / size))
-            if off < gap:
-                model, gap = i, off
-    else:
+    if cause != DEAD_TIME and cause != SERVO:
         return False
-    _requeue(cp, cs, int(cp[P_DEAD] + shift))
+    shift, model = predictor.member(cp, P_SCALES, cause, size, cp[C_PERIOD])
+    shift = pymax(shift, -cp[P_DEAD])
+    requeue(cs, S_QUEUE, S_QIDX, _dead(cp, cs), int(cp[P_DEAD] + shift), cs[CS_HELD])
     cs[S_MODEL], cs[S_SHIFT] = model, shift
     return True
-
-
-@compiled
-def _requeue(cp: np.ndarray, cs: np.ndarray, dead: int) -> None:
-    """The dead time's queue rebuilt for ``dead`` periods, the levels pending in their order:
-    for a longer delay the oldest repeated before them, for a shorter one the oldest dropped
-    (none pending: the level held)."""
-    was = _dead(cp, cs)
-    at = int(cs[S_QIDX])
-    pending = np.empty(max(was, 1))
-    if was == 0:
-        pending[0] = cs[CS_HELD]
-    for j in range(was):
-        pending[j] = cs[S_QUEUE + (at + j) % was]
-    for j in range(dead):
-        cs[S_QUEUE + j] = pending[max(j - (dead - pending.size), 0)]
-    cs[S_QIDX] = 0.0
 
 
 @compiled

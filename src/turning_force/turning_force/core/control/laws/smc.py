@@ -22,7 +22,10 @@ Dead time and servo (``smc_predictor``): the law acts on the force a Smith predi
 (:mod:`..predictor`): the machine's PMC dead time and servo (from ``turning-force identify``)
 are taken out, and the law sees the plant of Eq. 5 it is designed for, whose ``tau_s`` is
 the servo's (or a second-order servo's equivalent ``2 zeta / w_n``). With no dead time and
-a first-order servo the predictor changes nothing.
+a first-order servo the predictor changes nothing. Where the drift monitor names a PMC dead time
+or servo drift (``drift_adopt_model``), the predictor's machine model takes it, and the law the
+design it would have been commissioned with on that servo (:func:`adopt`,
+:func:`..predictor.adopt`), until the tool changes.
 
 Its gain uses the spindle speed through ``b``: the live one (``machine/spindle_speed``) where it
 is given, else ``spindle_speed_rpm`` (:func:`..law.spindle_speed`).
@@ -185,13 +188,25 @@ def sent(cp: np.ndarray, cs: np.ndarray, level: float) -> None:
 
 
 @compiled
+def adopt(cp: np.ndarray, cs: np.ndarray, cause: int, size: float) -> bool:
+    """The drift monitor named a lag drift, ``size`` the member of its bank: the Smith
+    predictor's machine model takes it, and the law the design for its servo
+    (:func:`..predictor.adopt`); without the predictor the law has no model to take it
+    into."""
+    if cp[P_PREDICTOR] == 0.0:
+        return False
+    return predictor.adopt(cp, cs, P_MODEL, S_MODEL, cause, size, cs[CS_HELD])
+
+
+@compiled
 def step(cp: np.ndarray, cs: np.ndarray, force: float, rate: float, out: np.ndarray) -> None:
     """Eqs. 5-21 (the module's text) on the force the Smith predictor gives."""
     ref = cp[C_REF]
     measured_error = force - ref
+    tau_s, tau_c = cp[P_DTAU], cp[P_TAU_C]
     if cp[P_PREDICTOR] != 0.0:
         force, rate = predictor.predict(cp, cs, P_MODEL, S_MODEL, ref, force, rate)
-    tau_s, tau_c = cp[P_DTAU], cp[P_TAU_C]
+        tau_s = predictor.design_tau_s(cp, cs, P_MODEL, S_MODEL)
     a1 = -1.0 / (tau_s * tau_c)
     a2 = -(tau_s + tau_c) / (tau_s * tau_c)
     to_b = 1.0 / (tau_s * tau_c * cp[C_RPM])
