@@ -115,7 +115,12 @@ CS_O_FF_PHASE, CS_O_FF_TIME, CS_O_FF_LEVEL, CS_O_FF_SHARE, CS_O_FF_NEAR, CS_O_FF
 # an alarm, negative while the detector lets a law's switch to an adopted model settle:
 # .update.ADOPT_SETTLE).
 CS_O_TOP, CS_O_AGE = 36, 37
-CS_DRIFT = 38   # the drift monitor's state (.drift), drift.STATE values
+# The oscillation detector's last two swings' half-periods (.update._turn: a limit cycle's
+# swings of one direction keep their pace), and the swing under way's calm (.update._watch):
+# the error where it last got on by the hysteresis, when (the time since the turn), and its
+# longest stall so far.
+CS_O_HALF_LAST, CS_O_HALF_BEFORE, CS_O_MARK, CS_O_MARK_AT, CS_O_STALL = range(38, 43)
+CS_DRIFT = 43   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
