@@ -254,7 +254,10 @@ class ControllerBase(Settings):
         'the one before (noise turns faster) and no smaller than 0.7 of it, or with it no '
         'smaller than 0.7 of the two before (a drifting mean makes every other swing small); '
         'the third after a rise and a return at least 0.7 of it (a depth step or an entry: '
-        'its two swings) counts whatever its size', '-', low=2, high=100, dynamic=True)
+        'its two swings) counts whatever its size; from the fourth on, one no larger than '
+        'the one two before keeps its pace (within 2.5 of its half-period); a swing out of a '
+        'calm spell (stalled over half its time, or slower than 2 s) only starts a count',
+        '-', low=2, high=100, dynamic=True)
     oscillation_reaction: str = setting(
         'detune', 'What the oscillation alarm does until the run ends or the tool changes: '
         "a slow PI law on the log of the feed whose crossover is a fifth of the oscillation's "
