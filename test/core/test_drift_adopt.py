@@ -206,8 +206,10 @@ def test_a_servo_drift_named_is_taken_into_the_model_and_the_loop_ends_in_band()
 
 def test_a_dead_time_drift_named_is_taken_into_the_model_and_the_loop_ends_in_band() -> None:
     # bench_drift.py --seed 29, #0: 78 ms of PMC dead time, a 0.16 s servo, g 0.62, the 'long'
-    # job (a depth step every 3 s); the dead time grown to 117 ms, the commissioned mpc held
-    # 46 N steady.
+    # job (a depth step every 3 s); the dead time grown to 117 ms. The commissioned mpc held
+    # 46 N steady once: its loop rang after a depth step (857 N back, then 53 N), calmed, and
+    # the oscillation detector took the next step's fall out of the calm spell for the fourth
+    # swing (alarmed at 12.24 s), its reaction detuning an in-band loop (.update.OSC_CALM).
     machine, sets = commissioned(29, 0, 0.0, 0.5)
     longer = {'pmc_dead_time_s': 1.5 * machine.plant['pmc_dead_time_s']}
     adopted = run(machine, sets, longer, adopt=True)
@@ -216,7 +218,7 @@ def test_a_dead_time_drift_named_is_taken_into_the_model_and_the_loop_ends_in_ba
     assert adopted.metrics['steady_mean_abs_error_n'] <= 5.0
     assert adopted.metrics['ripple_p2p_n'] <= 25.0
     kept = run(machine, sets, longer, adopt=False)
-    assert kept.metrics['steady_mean_abs_error_n'] > 5.0
+    assert kept.metrics['oscillation_alarms'] == 0.0
 
 
 def test_an_unchanged_machine_is_untouched() -> None:

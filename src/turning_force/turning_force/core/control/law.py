@@ -116,7 +116,12 @@ CS_O_FF_PHASE, CS_O_FF_TIME, CS_O_FF_LEVEL, CS_O_FF_SHARE, CS_O_FF_NEAR, CS_O_FF
 # an alarm, negative while the detector lets a law's switch to an adopted model settle:
 # .update.ADOPT_SETTLE).
 CS_O_TOP, CS_O_AGE = 36, 37
-CS_DRIFT = 38   # the drift monitor's state (.drift), drift.STATE values
+# The oscillation detector's last two swings' half-periods (.update._turn: a limit cycle's
+# swings of one direction keep their pace), and the swing under way's calm (.update._watch):
+# the error where it last got on by the hysteresis, when (the time since the turn), and its
+# longest stall so far.
+CS_O_HALF_LAST, CS_O_HALF_BEFORE, CS_O_MARK, CS_O_MARK_AT, CS_O_STALL = range(38, 43)
+CS_DRIFT = 43   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
@@ -250,7 +255,10 @@ class ControllerBase(Settings):
         'the one before (noise turns faster) and no smaller than 0.7 of it, or with it no '
         'smaller than 0.7 of the two before (a drifting mean makes every other swing small); '
         'the third after a rise and a return at least 0.7 of it (a depth step or an entry: '
-        'its two swings) counts whatever its size', '-', low=2, high=100, dynamic=True)
+        'its two swings) counts whatever its size; from the fourth on, one no larger than '
+        'the one two before keeps its pace (within 2.5 of its half-period); a swing out of a '
+        'calm spell (stalled over half its time, or slower than 2 s) only starts a count',
+        '-', low=2, high=100, dynamic=True)
     oscillation_reaction: str = setting(
         'detune', 'What the oscillation alarm does until the run ends or the tool changes: '
         "a slow PI law on the log of the feed whose crossover is a fifth of the oscillation's "

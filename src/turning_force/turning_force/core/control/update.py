@@ -73,14 +73,19 @@ from turning_force.core.control.law import (
     CS_O_FF_TIME,
     CS_O_GREW,
     CS_O_HALF,
+    CS_O_HALF_BEFORE,
+    CS_O_HALF_LAST,
     CS_O_HALVES,
     CS_O_HOLD,
     CS_O_HSUM,
     CS_O_LAST,
     CS_O_LOG_FORCE,
+    CS_O_MARK,
+    CS_O_MARK_AT,
     CS_O_OPEN,
     CS_O_PAIRED,
     CS_O_SINCE,
+    CS_O_STALL,
     CS_O_SWING,
     CS_O_SWING_BEFORE,
     CS_O_TAIL,
@@ -136,6 +141,34 @@ REACH_MEAN_S = 0.3
 # cycle.
 OSC_HYSTERESIS, OSC_DECAY = 1.0 / 3.0, 0.7
 OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.07, 2.0
+# A limit cycle keeps its pace: from the fourth swing of a count on, a swing no larger than the
+# one two before it (the last of the same direction) comes within OSC_REGULAR of its
+# half-period (a relay-like cycle rises and falls at different paces, 0.12 and 0.36 s on seed
+# 7's #6, so the swing just before is no measure). A loop's transient after a kick dies away
+# and is not paced so: its recovery swings, then a depth step's jump out of a calm spell (on
+# population seed 15's #195, commissioned and in band, half-periods of 0.34 s, then 0.23 and
+# 1.15 s: an overshoot that died into the noise, counted as the fourth and alarmed;
+# bench_drift seed 16's #0 with a slower servo and no model adopted, 1.24 s, then 1.31 and
+# 0.47 s: the next depth step's fall). A swing larger than the one two before is a cycle
+# growing, whatever its pace (an entry's cycle on seed 23's #32: 0.09 s, then 0.32 and 0.42 s,
+# swings of 81 N, then 953 and 1,315 N). Within 2 the cycles of the generated population's
+# seeds 15, 7 and 23 (166 oscillating runs) all keep their pace; within 1.7 two of them lose
+# it (a cycle growing on a step's settling mean).
+# A swing out of a calm spell is the program's, a depth step's jump, not the loop's: one that
+# took longer than OSC_HALF_MAX_S from the turn before, or whose error stalled in the cut (got
+# on by less than the hysteresis, before it last did) for more than OSC_CALM of its
+# half-period. A cycle's error gets on all the way to its extreme (from 0.5 to 0.75, the
+# oscillating runs of seeds 15, 7, 23, 31 and 43 are alarmed as before, and the false alarms
+# below are gone; counting the time from the last gain to the turn's finding as a stall too
+# took an entry's jump back into the cut for a calm spell). Commissioned on population seed
+# 15's #167 (no model adopted after a dead-time drift), an entry's two swings, then 1.3 s of
+# calm after the second and a depth step's rise of 303 N: counted as the third, its return as
+# the fourth, alarmed in band, and the reaction left the run at 82.93 N. Such a swing counts
+# for nothing on its own but starts a count as a kick's rise: on seed 23's #22 a cycle set off
+# by a step after 4.2 s of calm was alarmed 2.7 s after its onset while the rise was left out
+# (its return 0.71 of it, the next swing 0.57 of the return). Its half-period is untimed: the
+# cycle's mean takes the return's for it.
+OSC_REGULAR, OSC_CALM = 2.5, 0.5
 # Under the reaction the detector asks whether the reaction's own loop cycles: a swing counts
 # only REACTION_HALF_RATIO times the alarmed cycle's half-period at most (a PI law that
 # cycles does so where the process's phase is between -90 and -180 degrees: above w_u / 4 on
@@ -327,18 +360,27 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     alarm if it is large, took OSC_HALF_MIN_S to OSC_HALF_MAX_S, and the cycle does not die
     away: the last two swings together (a period's peak to peak) at least OSC_DECAY of the two
     before; the third after a kick whatever its size against the kick's, the fourth at least
-    OSC_DECAY of the third. Otherwise the count starts afresh. Under the alarm (the reaction
-    running), no kick, no swing in the first SETTLE_HALVES alarmed half-periods, and a swing
-    goes on the count where it and those counted before it
+    OSC_DECAY of the third; from the fourth on, each no larger than the one two before within
+    OSC_REGULAR of its half-period. Otherwise the count starts afresh, at the swing itself where
+    it counts, or where it is large and came out of a calm spell (OSC_CALM: a kick's rise).
+    Under the alarm (the reaction running), no kick, no swing in the first SETTLE_HALVES
+    alarmed half-periods, and a swing goes on the count where it and those counted before it
     took REACTION_HALF_RATIO times the alarmed cycle's half-period at most, or where it took
     within REACTION_REGULAR of their mean (a slower cycle of the reaction's own)."""
     swing, half = abs(extreme - cs[CS_O_LAST]), cs[CS_O_SINCE]
     last, before = cs[CS_O_SWING], cs[CS_O_SWING_BEFORE]
-    counts = swing >= cp[C_OSC_SWING] and OSC_HALF_MIN_S <= half <= OSC_HALF_MAX_S and (
-        cs[CS_O_AGE] >= 0.0 if cs[CS_O_ALARM] == 0.0
-        else cs[CS_O_AGE] >= SETTLE_HALVES * cs[CS_O_HALF])
+    watching = cs[CS_O_ALARM] == 0.0
+    large = swing >= cp[C_OSC_SWING] and (
+        cs[CS_O_AGE] >= 0.0 if watching else cs[CS_O_AGE] >= SETTLE_HALVES * cs[CS_O_HALF])
+    calm = half > OSC_HALF_MAX_S or (watching and cs[CS_O_STALL] > OSC_CALM * half)
+    counts = large and half >= OSC_HALF_MIN_S and not calm
+    onset = large and watching and calm   # a kick's rise, untimed
     chains = True
-    if cs[CS_O_ALARM] != 0.0 and cs[CS_O_COUNT] > 0.0:
+    if watching and cs[CS_O_COUNT] >= 3.0 and swing < before:
+        # a cycle's pace: within OSC_REGULAR of the swing of the same direction
+        paced = cs[CS_O_HALF_BEFORE]
+        chains = half <= OSC_REGULAR * paced and paced <= OSC_REGULAR * half
+    elif cs[CS_O_ALARM] != 0.0 and cs[CS_O_COUNT] > 0.0:
         # under the reaction: a swing within REACTION_HALF_RATIO of the alarmed half-period
         # after others as fast, or one about as long as the swings counted before it (a cycle
         # of the reaction's own, however slow)
@@ -354,17 +396,20 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     cs[CS_O_PAIRED] = 0.0 if kicked else 1.0
     if counts and cs[CS_O_COUNT] > 0.0 and lasting and chains:
         cs[CS_O_COUNT] += 1.0
-        cs[CS_O_HALVES] += half
+        # after an untimed first swing (none summed) this one's half-period twice
+        cs[CS_O_HALVES] += half * (2.0 if cs[CS_O_HALVES] == 0.0 else 1.0)
     else:
-        cs[CS_O_COUNT] = 1.0 if counts else 0.0
+        cs[CS_O_COUNT] = 1.0 if counts or onset else 0.0
         cs[CS_O_HALVES] = half if counts else 0.0
     # the level sent over the cycle: from the third swing on after a kick (the two before are
-    # the step's, not the loop's)
+    # the step's, not the loop's), none of a calm spell
     restart = kicked or cs[CS_O_COUNT] <= 1.0
-    cs[CS_O_CSUM] = cs[CS_O_HSUM] + (0.0 if restart else cs[CS_O_CSUM])
-    cs[CS_O_CTIME] = half + (0.0 if restart else cs[CS_O_CTIME])
+    timed = not onset
+    cs[CS_O_CSUM] = (cs[CS_O_HSUM] if timed else 0.0) + (0.0 if restart else cs[CS_O_CSUM])
+    cs[CS_O_CTIME] = (half if timed else 0.0) + (0.0 if restart else cs[CS_O_CTIME])
     cs[CS_O_HSUM] = 0.0
     cs[CS_O_LAST], cs[CS_O_SWING_BEFORE], cs[CS_O_SWING] = extreme, last, swing
+    cs[CS_O_HALF_BEFORE], cs[CS_O_HALF_LAST] = cs[CS_O_HALF_LAST], half
     cs[CS_O_SINCE] = 0.0
 
 
@@ -417,6 +462,8 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
         cs[CS_O_SWING], cs[CS_O_COUNT], cs[CS_O_SINCE] = 0.0, 0.0, 0.0
         cs[CS_O_SWING_BEFORE], cs[CS_O_PAIRED] = 0.0, 1.0
         cs[CS_O_HSUM], cs[CS_O_CSUM], cs[CS_O_CTIME] = 0.0, 0.0, 0.0
+        cs[CS_O_HALF_LAST], cs[CS_O_HALF_BEFORE] = 0.0, 0.0
+        cs[CS_O_MARK], cs[CS_O_MARK_AT], cs[CS_O_STALL] = error, 0.0, 0.0
         return
     h = OSC_HYSTERESIS * cp[C_OSC_SWING]
     cs[CS_O_AGE] += cp[C_PERIOD]
@@ -424,9 +471,13 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
     cs[CS_O_SINCE] += cp[C_PERIOD]
     if (rising and error > cs[CS_O_EXT]) or (not rising and error < cs[CS_O_EXT]):
         cs[CS_O_EXT] = error
+        if abs(error - cs[CS_O_MARK]) >= h:   # got on by the hysteresis: no stall
+            cs[CS_O_STALL] = pymax(cs[CS_O_STALL], cs[CS_O_SINCE] - cs[CS_O_MARK_AT])
+            cs[CS_O_MARK], cs[CS_O_MARK_AT] = error, cs[CS_O_SINCE]
     elif (rising and error < cs[CS_O_EXT] - h) or (not rising and error > cs[CS_O_EXT] + h):
         _turn(cp, cs, cs[CS_O_EXT])
         cs[CS_O_EXT], cs[CS_O_DIR] = error, -cs[CS_O_DIR]
+        cs[CS_O_MARK], cs[CS_O_MARK_AT], cs[CS_O_STALL] = error, 0.0, 0.0
     if cs[CS_O_COUNT] >= cp[C_OSC_COUNT]:
         if cs[CS_O_ALARM] == 0.0:
             _alarm(cp, cs, error)
@@ -550,6 +601,7 @@ def _out_of_cut(cp: np.ndarray, cs: np.ndarray) -> None:
     (:func:`controller_tool`): a loop that cycled cycles again at the next entry, and finding
     it again would cost another ``oscillation_swings`` swings."""
     cs[CS_O_SINCE] += cp[C_PERIOD]
+    cs[CS_O_MARK_AT] += cp[C_PERIOD]   # no stall of the error in the cut
     if cs[CS_O_SINCE] > OSC_HALF_MAX_S:
         cs[CS_O_DIR], cs[CS_O_COUNT] = 0.0, 0.0
 
