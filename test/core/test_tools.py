@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from turning_force.core.control import ControllerSettings, make_controller
+from turning_force.core.control import ControllerSettings, drift, make_controller
 from turning_force.core.control.predictor import model_matrices
 from turning_force.core.errors import ConfigError
 from turning_force.core.experiment import load_experiment, parse_experiment
@@ -190,6 +190,23 @@ def test_a_live_change_that_needs_a_longer_queue_is_refused(tmp_path):
                                           r'model_dead_time_s.*restart the node'):
         law.retune(longer)
     assert law.settings.model_dead_time_s == 0.0   # nothing of it taken
+
+
+def test_the_drift_alarm_speaks_of_the_tools_model(tmp_path):
+    # The drift text and the adopted model's text read the settings the law runs on: the
+    # tool's section where the tool input selected one (tool 2's 100 ms dead time, not the
+    # machine's 0 ms), the machine's before a tool input and for a tool without a section.
+    path = tmp_path / 'tools.yaml'
+    path.write_text(yaml.safe_dump({'tools': {2: {'force_controller': {
+        'model_dead_time_s': 0.1}}}}))
+    law = make_controller(ControllerSettings(controller='mpc', tools_file=str(path)))
+    assert law.in_use.model_dead_time_s == 0.0
+    assert law.select_tool(2)
+    text = drift.drift_text(law.in_use, drift.DEAD_TIME, 0.05, 0.005, adopted=(drift.DEAD_TIME,
+                                                                                0.05))
+    assert 'identified 100 ms, now 150 +- 5 ms' in text and 'predicts with 150 ms' in text
+    assert not law.select_tool(7)
+    assert law.in_use.model_dead_time_s == 0.0
 
 
 def test_a_missing_tools_file_is_refused_naming_it(tmp_path):

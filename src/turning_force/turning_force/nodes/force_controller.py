@@ -144,7 +144,7 @@ class ForceControllerNode(Node):
             self._oscillating = out.oscillating
             self.diagnostics.set_value('oscillating', out.oscillating)
             if out.oscillating:
-                settings = self._controller.settings
+                settings = self._controller.in_use
                 text = (f'the loop oscillates: the force error swings by '
                         f'{settings.oscillation_swing_n:g} N or more, again and again; '
                         f'oscillation_reaction {settings.oscillation_reaction} from '

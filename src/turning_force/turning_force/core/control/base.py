@@ -103,7 +103,8 @@ class Controller:
         self._levels = np.array(self._table.levels_pct, dtype=np.float64)
         self._params, size = _params(settings, self._table)
         self._tools = load_tools_file(settings.tools_file) if settings.tools_file else {}
-        self.tool_table, tool_size = self._tool_table(settings, self._params.size)
+        self._per_tool = tool_settings(settings, self._tools, settings.tools_file)
+        self.tool_table, tool_size = self._tool_table(self._per_tool, self._params.size)
         # Room for the largest state any tool's section needs (its dead time's queue).
         self._state = np.zeros(CS_LAW + max(size, tool_size))
         self._state[CS_DRIFT + drift.DS_APPLIED] = math.nan   # no override applied told yet
@@ -114,14 +115,15 @@ class Controller:
         self._rpm = math.nan
         self.tool_number = math.nan   # the tool whose settings are in use (NaN: the settings')
 
-    def _tool_table(self, settings: ControllerSettings, size: int) -> tuple[FloatArray, int]:
-        """Per tool of the tools file over ``settings`` (whose parameters are ``size`` long):
-        its number, then the parameters of its settings (:func:`.update.controller_tool`), no
-        rows without a tools file; and the largest state a tool's law needs (0: none)."""
-        per_tool = tool_settings(settings, self._tools, settings.tools_file)
+    def _tool_table(self, per_tool: dict[int, ControllerSettings], size: int
+                    ) -> tuple[FloatArray, int]:
+        """Per tool of the tools file (``per_tool``: its settings; the machine's parameters
+        are ``size`` long): its number, then the parameters of its settings
+        (:func:`.update.controller_tool`), no rows without a tools file; and the largest state
+        a tool's law needs (0: none)."""
         built = [(number, *_params(s, self._table)) for number, s in per_tool.items()]
         if any(params.size != size for _, params, _ in built):
-            raise ConfigError(f'{settings.tools_file}: a tool section changes the size of '
+            raise ConfigError(f'{self.settings.tools_file}: a tool section changes the size of '
                               f"the {self.name} law's parameters (its horizon or order): not "
                               'a per-tool setting')
         rows = [np.concatenate(([number], params)) for number, params, _ in built]
@@ -139,6 +141,14 @@ class Controller:
         return update.control_tool(self.tool_table, self._params, self._state, number) >= 0
 
     @property
+    def in_use(self) -> ControllerSettings:
+        """The settings the law runs on now: the tool's section laid over the settings where
+        the tool input selected one (:meth:`select_tool`), else the settings."""
+        number = self.tool_number   # NaN before a tool input
+        return self._per_tool.get(int(number), self.settings) if number.is_integer() else \
+            self.settings
+
+    @property
     def arrays(self) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(parameters, state, levels) as ``controller_update`` reads them; the state live (a
         loop that runs it runs this controller)."""
@@ -153,14 +163,14 @@ class Controller:
     def drift(self) -> str:
         """The drift alarm in words (:func:`.drift.drift_text`; '' while none holds)."""
         monitor = self._state[CS_DRIFT:CS_LAW]
-        return drift.drift_text(self.settings, *drift.alarm(monitor),
+        return drift.drift_text(self.in_use, *drift.alarm(monitor),
                                 adopted=drift.adopted(monitor))
 
     @property
     def model(self) -> str:
         """The model the law predicts with, in words, where it took a lag drift the drift
         monitor named into it (:func:`.drift.adopted_text`; '': the commissioned model)."""
-        return drift.adopted_text(self.settings, *drift.adopted(self._state[CS_DRIFT:CS_LAW]))
+        return drift.adopted_text(self.in_use, *drift.adopted(self._state[CS_DRIFT:CS_LAW]))
 
     def rezeroed(self, scale: float) -> None:
         """The estimator re-zeroed the friction in air to ``scale`` x calibrated (the drift
@@ -184,12 +194,13 @@ class Controller:
     def retune(self, settings: ControllerSettings) -> None:
         """Take new dynamic settings (reference, gains) from the next update on."""
         params, size = _params(settings, self._table)
-        table, tool_size = self._tool_table(settings, params.size)
+        per_tool = tool_settings(settings, self._tools, settings.tools_file)
+        table, tool_size = self._tool_table(per_tool, params.size)
         if CS_LAW + max(size, tool_size) > self._state.size:
             raise ConfigError(f"{self.name}: the new settings need a larger state for the law's "
                               'queue (model_dead_time_s) than the one it runs on: not a live '
                               'setting; restart the node with them')
-        self.settings = settings
+        self.settings, self._per_tool = settings, per_tool
         self._params = params
         set_spindle_speed(self._params, self._rpm)
         self.tool_table = table
