@@ -69,8 +69,8 @@ def job(commissioned: list[str], *drift: str) -> Experiment:
     # K_s d is identified to 0.01 %, and the monitor's gain is the ratio of two means of
     # hundreds of samples of a 1 % noise: 2 % covers both with a wide margin
     (['lathe_sim.specific_cutting_force_n_mm2=3080.0'], 'process gain', 0.40, 0.02),
-    # the bank's time scales are x1.2 apart: the reading is within one step
-    (['lathe_sim.servo_time_constant_s=0.306'], 'servo', 1.8, 1.8 * 0.2),
+    # the bank's time scales are SERVO_RATIO (x1.1) apart: the reading is within one step
+    (['lathe_sim.servo_time_constant_s=0.306'], 'servo', 1.8, 1.8 * (drift.SERVO_RATIO - 1.0)),
 ])
 def test_the_monitor_names_what_drifted_within_5_s_of_cutting(
         commissioned: list[str], drift: list[str], cause: str, size: float,
@@ -199,16 +199,18 @@ def assert_servo_drift_named(machine: population.Machine, sets: list[str]) -> No
     named = result.trace['drift_alarm']
     assert CAUSES[int(named[np.flatnonzero(named)[0]])] == 'servo', result.drift
     assert result.metrics['drift_alarm_s'] <= 5.0
-    # the bank's time scales are x1.2 apart: the reading is within one step
-    assert result.trace['drift_size'][-1] == pytest.approx(1.8, abs=1.8 * 0.2), result.drift
+    # the bank's time scales are SERVO_RATIO (x1.1) apart: the reading is within one step
+    assert result.trace['drift_size'][-1] == pytest.approx(
+        1.8, abs=1.8 * (drift.SERVO_RATIO - 1.0)), result.drift
     unchanged = simulate(population.job_experiment(machine).with_sets(sets))
     assert not unchanged.trace['drift_alarm'].any(), unchanged.drift
 
 
 def test_a_servo_drift_is_named_where_what_the_bank_leaves_is_slow() -> None:
     # bench_drift.py --seed 16, #1: a second-order servo (10.2 rad/s) behind 144 ms of PMC dead
-    # time, on the 'long' job. Slowed x1.8, the bank's member x1.73 leaves a hundredth to a
-    # three-hundredth of the identified model's residual in the job's first seconds; what it
+    # time, on the 'long' job. Slowed x1.8, the bank's member x1.73 (its steps x1.2 then)
+    # leaves a hundredth to a three-hundredth of the identified model's residual in the job's
+    # first seconds; what it
     # leaves is slow (lag-one correlation 0.93 to 0.98: the bank's step, 1.8 against 1.73),
     # and counted at that correlation a 1 s window held about one independent sample: no
     # alarm. The estimate's own noise is less correlated than drift.RHO_MAX (0.9): 5
@@ -251,8 +253,8 @@ def test_lag_drifts_are_named_on_a_taper() -> None:
         named = result.trace['drift_alarm']
         assert CAUSES[int(named[np.flatnonzero(named)[0]])] == cause, result.drift
         assert result.metrics['drift_alarm_s'] <= 5.0
-        # within one step of the bank: a control period, or x1.2
-        step = 0.01 if cause == 'PMC dead time' else 0.2 * size
+        # within one step of the bank: a control period, or SERVO_RATIO (x1.1)
+        step = 0.01 if cause == 'PMC dead time' else (drift.SERVO_RATIO - 1.0) * size
         assert result.trace['drift_size'][-1] == pytest.approx(size, abs=step), result.drift
     unchanged = simulate(population.job_experiment(machine).with_sets(sets))
     assert not unchanged.trace['drift_alarm'].any(), unchanged.drift

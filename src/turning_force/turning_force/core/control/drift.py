@@ -101,10 +101,18 @@ __all__ = ['CAUSES', 'CORRECTIONS', 'PARAMS', 'STATE', 'adopted', 'adopted_text'
 
 FloatArray = npt.NDArray[np.float64]
 
-# The bank: dead time offsets [control periods] and servo time scales SERVO_RATIO^k.
+# The bank: dead time offsets [control periods] and servo time scales SERVO_RATIO^k, x0.56
+# to x2.59. The member nearest a servo drift misses it by up to half a step, and what it
+# leaves is slow misfit, its lag-one correlation at RHO_MAX: the lag test needs that member
+# to leave a twentieth of the identified one's residual. At x1.2 steps a drift halfway
+# between two members did not: on a second-order servo slowed x1.30 (between x1.2 and
+# x1.44) the x1.2 member left an eighth, a statistic of 10 against 16 once the entry's
+# transient was in the window, and the drift was named only from a depth step's transient
+# 8.5 s in, each step ringing on the old model until then (population seed 15, #152, the
+# 'steps' job; its x1.33 member at x1.1 steps names it 2.2 s in, as on x1.3 exactly).
 DEAD_OFFSETS = (-4, -3, -2, -1, 1, 2, 3, 4, 5, 6, 7, 8)
-SERVO_RATIO = 1.2
-SERVO_POWERS = (-3, -2, -1, 1, 2, 3, 4, 5)
+SERVO_RATIO = 1.1
+SERVO_POWERS = (-6, -5, -4, -3, -2, -1, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10)
 N_MODELS = 1 + len(DEAD_OFFSETS) + len(SERVO_POWERS)
 # What drifted (the alarm's code, the trace's ``drift_alarm``).
 NONE, DEAD_TIME, SERVO, GAIN, FRICTION = range(5)
