@@ -36,6 +36,10 @@ from turning_force.core.control.update import (
     OSC_HALF_MAX_S,
     OSC_REGULAR,
     RECYCLE_RATIO,
+    RISE_HALVES,
+    RISE_KEEP,
+    STEP_CALM,
+    STEP_CALM_MEAN_S,
     TAIL_RATE_PER_S,
 )
 from turning_force.core.errors import ConfigError
@@ -578,6 +582,42 @@ def test_a_depth_step_up_is_left_to_the_reaction_s_pi_law():
     share = np.log(1.5)
     step = (state[CS_O_CROSSOVER] * dt + DETUNE_P) * share
     assert state[CS_O_HOLD] == pytest.approx(before * np.exp(-step), rel=1e-4)
+
+
+@pytest.mark.parametrize(('rise_s', 'kept'), [(0.3, True), (0.05, False)], ids=['slow', 'fast'])
+def test_a_slow_depth_step_up_under_the_reaction_keeps_a_share_of_its_rise(rise_s, kept):
+    # After the alarm (a 0.6 s cycle: half-periods of 0.3 s) the force is calm at the
+    # reference, then rises by a factor 2 (a depth step up) in ``rise_s`` and comes back as
+    # exp(-5 t) (the controller's output not fed back; faster than TAIL_RATE_PER_S, so the
+    # crossover is not quickened). In the log the level's move is the integral's sum over the
+    # periods, the proportional part's net (DETUNE_P times the share's change from the calm
+    # spell to the end, about 0: it gave back what it took on the rise), and where the rise
+    # took at least RISE_HALVES of the half-period from its finding (share 0.1) to its peak,
+    # RISE_KEEP of the rise, kept (the calm spell's mean share, e^-10 of where the cycle left
+    # it a second before, is 0 to 1e-5; without the kept share the level stands 22 % higher).
+    controller, state, dt, _ = alarmed(0.6, 'force_controller.model_cutting_exponent=0.8')
+    for _ in range(round(1.0 / dt)):
+        out = controller.update(500.0, 0.0)
+        controller.applied(out.override_pct, True, int(Reason.NORMAL))
+    before, crossover = state[CS_O_HOLD], state[CS_O_CROSSOVER]
+    peak, rising = np.log(2.0), round(rise_s / dt)
+    assert (rise_s * (1.0 - 0.1 / peak) >= RISE_HALVES * state[CS_O_HALF]) == kept
+    shares = [peak * k / rising for k in range(1, rising + 1)]
+    shares += [peak * np.exp(-5.0 * k * dt) for k in range(1, round(3.0 / dt))]
+    for k, share in enumerate(shares):
+        force = 500.0 * np.exp(share)
+        rate = peak / rise_s if k < rising else -5.0 * share
+        out = controller.update(force, rate * force)
+        controller.applied(out.override_pct, True, int(Reason.NORMAL))
+    assert state[CS_O_CROSSOVER] == crossover
+    # the rise is taken from the calm spell's mean share, which followed the step's first
+    # periods (up to STEP_CALM) over STEP_CALM_MEAN_S
+    calm = 0.0
+    for share in shares[:int(np.argmax(np.array(shares) > STEP_CALM))]:
+        calm += (share - calm) * min(dt / STEP_CALM_MEAN_S, 1.0)
+    moved = crossover * dt * sum(shares) + DETUNE_P * shares[-1] + (
+        RISE_KEEP * (peak - calm) if kept else 0.0)
+    assert state[CS_O_HOLD] == pytest.approx(before * np.exp(-moved), rel=1e-4)
 
 
 @pytest.mark.parametrize('machine', ['second_order_slow', 'kienzle_0p6_noisy_dead_time'])
