@@ -144,6 +144,10 @@ RHO_MAX = 0.9
 # longer leaves half the identified one's residual (seed 29 #2 at 3.5 mm and 14 %: a statistic
 # of 16.7 against 16): a dead time within drift_sigmas of that is none.
 DELAY_STD = 1.0 / math.sqrt(12.0)
+# The servo's time scale likewise, to within half a step of the bank's: SERVO_RATIO's log over
+# sqrt(12). One step off is no drift, two are (at drift_sigmas 4, x1.1 against x1.21): on
+# population seed 15's #195, undrifted, the x0.91 member was named at 6.70 s.
+SERVO_STD = math.log(SERVO_RATIO) / math.sqrt(12.0)
 # A step in the force that no member follows (a depth step in the program, a harder part of
 # the bar: the process gain jumps) starts a segment of the window, as an entry does: fitted
 # with one gain and a ramp, a window that straddles the step leaves the same residual on every
@@ -342,7 +346,7 @@ def drift_fill(c: ControllerBase) -> FloatArray:
     # the bank's sampled model reads the machine's delay to within its hold (DELAY_STD)
     p[D_DEAD] = c.model_dead_time_s
     p[D_DEAD_STD] = math.hypot(c.drift_dead_time_std_s, DELAY_STD * h)
-    p[D_SERVO_STD] = c.drift_servo_std
+    p[D_SERVO_STD] = math.hypot(c.drift_servo_std, SERVO_STD)   # the bank's step (SERVO_STD)
     p[D_FIRST_S] = c.drift_first_s
     p[D_K_FIRST_LO] = c.drift_ksd_first_min_n_mm * feed
     p[D_K_FIRST_HI] = c.drift_ksd_first_max_n_mm * feed
