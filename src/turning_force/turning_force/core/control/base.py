@@ -144,9 +144,9 @@ class Controller:
     def in_use(self) -> ControllerSettings:
         """The settings the law runs on now: the tool's section laid over the settings where
         the tool input selected one (:meth:`select_tool`), else the settings."""
-        number = self.tool_number   # NaN before a tool input
-        return self._per_tool.get(int(number), self.settings) if number.is_integer() else \
-            self.settings
+        if not self.tool_number.is_integer():   # NaN: no tool input yet
+            return self.settings
+        return self._per_tool.get(int(self.tool_number), self.settings)
 
     @property
     def arrays(self) -> tuple[FloatArray, FloatArray, FloatArray]:
