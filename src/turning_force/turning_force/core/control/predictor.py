@@ -60,7 +60,7 @@ from turning_force.core.lti import expm
 
 __all__ = ['ENGAGED_FRACTION', 'MODEL_SIZE', 'MODEL_STEP_S', 'PARAMS', 'SCALES', 'STATE',
            'adopt', 'design_tau_s', 'design_time_constant_s', 'member', 'model_bank',
-           'model_matrices', 'params', 'predict', 'reset', 'send']
+           'model_matrices', 'model_order', 'params', 'predict', 'reset', 'send']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -130,6 +130,12 @@ def _discretised(a_rows: tuple[tuple[float, ...], ...], b_values: tuple[float, .
     return e[:n, :n].tolist(), e[:n, n].tolist()
 
 
+def model_order(servo_model: str) -> int:
+    """The machine model's state size (:func:`model_matrices`): the servo's order, then the
+    process lag's one."""
+    return 2 if servo_model == 'first_order' else 3
+
+
 def model_matrices(servo_model: str, time_constant_s: float, natural_freq_rad_s: float,
                    damping: float, cutting_time_constant_s: float,
                    step_s: float = MODEL_STEP_S) -> tuple[FloatArray, FloatArray]:
@@ -189,7 +195,7 @@ def params(servo_model: str, time_constant_s: float, natural_freq_rad_s: float, 
     """The predictor's parameters (``PARAMS``) and the length of its dead time's queue, room
     for the drift monitor's longest delay included."""
     p = np.zeros(PARAMS)
-    p[M_NX] = 2 if servo_model == 'first_order' else 3
+    p[M_NX] = model_order(servo_model)
     p[D_NX] = 2
     queue = round(dead_time_s / MODEL_STEP_S)
     room = queue + round(max(DEAD_OFFSETS) * control_period_s / MODEL_STEP_S)

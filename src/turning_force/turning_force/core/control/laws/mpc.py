@@ -146,7 +146,7 @@ def fill(settings: ControllerBase) -> tuple[Sequence[float], int]:
     models = predictor.model_bank(c.model_servo_model, c.model_servo_time_constant_s,
                                   c.model_servo_natural_freq_rad_s, c.model_servo_damping,
                                   c.model_cutting_time_constant_s, period)
-    nx = 2 if c.model_servo_model == 'first_order' else 3
+    nx = predictor.model_order(c.model_servo_model)
     table = get_table(c.override_table)
     levels = (np.linspace(table.min_pct, table.max_pct, CONTINUOUS_LEVELS) if table.continuous
               else np.array(table.levels_pct, dtype=np.float64))
