@@ -11,7 +11,9 @@ above 50 N for at least 2 s (test/core/test_loop_watch.py). The reaction's rippl
 product's own ``ripple_p2p_n`` (the 1 s before each depth change and before the end, settle
 windows left out) over the run from RECOVERY_S after its alarm: a reaction needs a few of the
 cycle's periods to bring the loop back (the oscillation itself, before the alarm, is in the
-whole run's figure beside it)::
+whole run's figure beside it). A run the reaction leaves over the bound is shown with the
+window that holds its ripple (the 1 s before which depth change, or before the end): a depth
+step's transient under the reaction shows in the window before the next change::
 
     .venv/bin/python test/bench/bench_loop_watch.py --machines 60 --seed 15
 """
@@ -27,10 +29,27 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'core'))
 from test_loop_watch import first_alarm_s, oscillation_onset_s, ripple_after
 
 from turning_force.commands.population import draw, job_experiment
-from turning_force.core.kernel.simulate import simulate
+from turning_force.core.experiment import Experiment
+from turning_force.core.kernel.simulate import SimulationResult, simulate
 
 BAND_STEADY_N, BAND_RIPPLE_N = 5.0, 25.0
 RECOVERY_S = 3.0
+
+
+def worst_window_s(result: SimulationResult, job: Experiment, from_s: float) -> float:
+    """The end of the ripple window (a depth change, or the run's end) that holds the run's
+    ``ripple_p2p_n`` from ``from_s`` on: the first end up to which the run's ripple is all of
+    it."""
+    whole = ripple_after(result, job, from_s)
+    t = result.trace['t_s']
+    ends = [c for c in job.plant.depth_profile.change_times_s() if c > from_s]
+    for end in ends:
+        keep = t < end
+        upto = SimulationResult(trace={k: v[keep] for k, v in result.trace.items()},
+                                metrics=result.metrics)
+        if ripple_after(upto, job, from_s) >= whole:
+            return float(end)
+    return float(t[-1])
 
 
 def main() -> None:
@@ -52,6 +71,7 @@ def main() -> None:
                         and metrics['ripple_p2p_n'] <= BAND_RIPPLE_N),
             'ripple_n': metrics['ripple_p2p_n'], 'reacted_ripple_n': reacted['ripple_p2p_n'],
             'recovered_ripple_n': ripple_after(reacting, job, (alarm_s or 0.0) + RECOVERY_S),
+            'worst_s': worst_window_s(reacting, job, (alarm_s or 0.0) + RECOVERY_S),
             'steady_n': metrics['steady_mean_abs_error_n'],
             'reacted_steady_n': reacted['steady_mean_abs_error_n']})
     oscillating = [r for r in rows if r['onset_s'] is not None]
@@ -78,7 +98,8 @@ def main() -> None:
             alarm = 'none' if r['alarm_s'] is None else f'{r["alarm_s"]:.2f}'
             print(f'  {r["machine"]}: onset {r["onset_s"]}, alarm {alarm}, ripple '
                   f'{r["ripple_n"]:.0f} -> {r["reacted_ripple_n"]:.0f} N (from '
-                  f'{RECOVERY_S:g} s after the alarm: {r["recovered_ripple_n"]:.0f} N), steady '
+                  f'{RECOVERY_S:g} s after the alarm: {r["recovered_ripple_n"]:.0f} N, '
+                  f'the 1 s before {r["worst_s"]:.1f} s), steady '
                   f'{r["steady_n"]:.1f} -> {r["reacted_steady_n"]:.1f} N')
 
 
