@@ -812,8 +812,11 @@ def _identify_process(recordings: Sequence[Recording], segments: Sequence[_Segme
                             + 2.0 * log_ratio * cov[0, 2] / best.x[0], 0.0))
     params = {
         'ksd_n_mm': Estimate(ksd, ksd * rel_ksd, 'N/mm'),
+        # G's spread is the force's at the cut's median feed, where G and g were fitted
+        # apart: a g drawn about its estimate turns G about that feed (verification.py)
         'gain_n_per_mm_min': Estimate(gain, gain * float(std[0] / best.x[0]),
                                       'N/(mm/min)^g'),
+        'gain_feed_mm_min': Estimate(scale, 0.0, 'mm/min'),
         'cutting_exponent': Estimate(g, float(std[2])),
         'cutting_time_constant_s': Estimate(float(best.x[1]), float(std[1]), 's'),
     }
