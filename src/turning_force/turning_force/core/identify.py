@@ -13,7 +13,9 @@ then a cut, both with a scripted override staircase. The model::
 What is measured, and from what:
 
 1. Segments. The cut is the longest run of blocks whose recorded force estimate passes
-   ``cut_force_n``; the air move is what comes before it.
+   ``cut_force_n``, or with the program's depths (a production cut) all of them from the first
+   to the last, the air moves between them in it at depth 0; the air move is what comes
+   before it.
 2. PMC dead time and feed servo, from the feed rate the DAQ records against the override the
    PMC applied (each block runs at the override answering the block before). An ARX model at
    every whole-sample delay gives a first guess; then both servo models are fitted with the
@@ -571,6 +573,12 @@ def _segments(rec: Recording, s: IdentifySettings) -> _Segments:
     air_stop = rec.blocks
     if runs:
         first, last = max(runs, key=lambda run: run[1] - run[0])
+        if rec.depth_mm is not None:
+            # The program's depths say where the tool is out of the work: an interrupted
+            # cut's air moves between its cuts are Eq. 1 at depth 0 (the force's tail, then
+            # none), and there the estimate is the friction's error alone, which the cuts
+            # cannot tell from the gain (a production cut's prior curve, Eq. 25)
+            first, last = runs[0][0], runs[-1][1]
         settle = round(s.cut_settle_s / per_block)
         if last - first - settle > 0:
             cut = (first + settle, last)
@@ -901,9 +909,10 @@ def identify(recordings: Sequence[Recording], settings: IdentifySettings | None 
     A production session (the job cut under regulation) is identified in closed loop from the
     controller's own override steps: the servo and dead time from the applied override against
     the feed, the process from the cut over the program's depths (``Recording.depth_mm``). It
-    has no air move to separate friction from the force: ``prior_friction`` (the earlier
-    commissioning's curve) is kept for it, and the sensor's noise is taken as the cut's (no
-    fluctuation apart).
+    has no air move before the cut to measure friction on: ``prior_friction`` (the earlier
+    commissioning's curve) is kept for it, moved by the errors the cut finds (an interrupted
+    cut's air moves between its pieces, at depth 0 by the program, read them directly), and
+    the sensor's noise is taken as the cut's (no fluctuation apart).
 
     Raises :class:`IdentifyError` naming the session and what it lacks: no override steps, too
     short, no cut, no air move (and no prior), or a current sensor saturated in the cut.
