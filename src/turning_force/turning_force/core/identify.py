@@ -69,9 +69,14 @@ CREEP_FRACTION = 0.05   # the friction curve's vertex: 5 % of the programmed fee
 # cut steps at every depth change and dithers between the two levels about the force.
 MIN_CUT_STEPS = 10
 # A production cut moves the prior's friction curve only where an end value's error passes this
-# many standard deviations (a two-sided test at about 5 %): an interrupted cut of 3 s fitted
-# errors of 0.07 +- 0.11 A, which moved a right curve and biased the what-if's force by 1.5 N.
-FRICTION_SIGNIFICANCE = 2.0
+# many standard deviations: an interrupted cut of 3 s fitted errors of 0.07 +- 0.11 A, which
+# moved a right curve and biased the what-if's force by 1.5 N. The standard deviations run
+# short of the errors' spread (the residual's correlation is only partly counted): on the
+# production cuts of generator seeds 16, 29 and 37 (machines 0-5, each after a dead time,
+# gain or servo drift, the friction as commissioned) 9 of 54 passed 2 (a two-sided 5 %),
+# moving a right curve by 0.02-0.04 A (3-7 N: seed 29 #5's gain drift re-identified 0.80 ->
+# 4.45 N steady) and 1 passed 3 (4.1); the 18 friction drifts of +25 % passed 4.9 to 111.
+FRICTION_SIGNIFICANCE = 3.0
 
 
 class IdentifyError(TurningForceError, ValueError):
