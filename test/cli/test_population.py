@@ -4,10 +4,9 @@ ranges, every job and drift a valid experiment, and the commissioning flow runs 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
-
-from dataclasses import replace
 
 from turning_force.commands.population import (
     JOBS,
