@@ -40,10 +40,11 @@ there as ``drift_ksd_first_*``) ``K_id`` is that depth's.
 
 The friction is measured, not inferred, where the tool is in air: the estimator's re-zero
 (:func:`drift_rezeroed`) gives its scale on the identified curve, and a scale outside the
-identified friction's uncertainty is the friction drift. Without an air move, a friction drift
-is an offset of a few percent of the cut's force: at the job's start, where the depth is known,
-it stands out of the process model's own error (:func:`model_error`, a fraction of a percent
-on the generated machines), but at one feed it is also a gain of a few percent. The alarm
+identified friction's uncertainty (for REZERO_STAND_S of the reading) is the friction drift.
+Without an air move, a friction drift is an offset of a few percent of the cut's force: at the
+job's start, where the depth is known, it stands out of the process model's own error
+(:func:`model_error`, a fraction of a percent on the generated machines), but at one feed it
+is also a gain of a few percent. The alarm
 names both, the friction first until a re-zero has measured it (the one the loop has not
 checked since commissioning); a re-zero that finds the friction unchanged turns it to the gain.
 
@@ -125,6 +126,13 @@ FIRST_RAMP_S = 3.0   # a job that starts on a taper: its first seconds count as 
 # which the commissioning cut fitted at its own feeds: its relative error there, one standard
 # deviation (up to 4 % on generated machines that did not change, bench_drift.py seed 16).
 REZERO_STD = 0.025
+# A re-zero's reading names the friction drift once it has stood beyond the band this long in
+# a row [s]: a drift's scale, converging through the air move, stays beyond once it got there;
+# a feed's transient does not. On population seed 15's #101 (undrifted; an interrupted job on
+# a servo of zeta 0.31) the feed rang down to a stop in the air move, and the readings through
+# the stick region read half the friction for 0.05 s (the scale at its clamp, 0.5), named
+# "friction -50 %" at once, while the move's later readings gave 1.014-1.026.
+REZERO_STAND_S = 0.1
 HISTORY = 64   # control periods of applied override kept (the longest delay in the bank)
 # The largest lag-one autocorrelation the effective sample count takes from a residual. The
 # Kalman estimate's own noise is correlated up to about 0.9 from one control period to the
@@ -191,13 +199,14 @@ PARAMS = D_MODELS + N_MODELS * M_FIELDS
 # member's residual has stood beyond STEP_SIGMAS (signed: its sign) of the window's mean
 # square before, the window's weight over all its segments (the segment's is DS_S1), and that
 # weight where the step's run began; the lag drift (cause, size) the law took into its model
-# (drift_adopt_model: update.controller_update; 0: none).
+# (drift_adopt_model: update.controller_update; 0: none); how long the re-zero's reading has
+# stood beyond the band (REZERO_STAND_S).
 (DS_APPLIED, DS_AT, DS_STARTED, DS_IN_CUT, DS_S1, DS_SF, DS_SFF, DS_CAUSE, DS_SIZE,
  DS_SINCE, DS_ALARM, DS_ALARM_SIZE, DS_ALARM_STD, DS_ALARMS, DS_ALARM_ALT,
  DS_CUT_S, DS_LAPSE, DS_REZEROED, DS_SCALE, DS_CORRECT, DS_STEP, DS_STEP_MS, DS_COUNT,
  DS_COUNT_RUN, DS_SQ, DS_SQQ, DS_SQF, DS_L1, DS_LF, DS_LFF, DS_LY, DS_LYY, DS_LYF,
- DS_ADOPTED, DS_ADOPTED_SIZE) = range(35)
-DS_HIST = 35
+ DS_ADOPTED, DS_ADOPTED_SIZE, DS_BEYOND) = range(36)
+DS_HIST = 36
 # The re-zero: none yet, reading (its scale converging through the air move), a control
 # period without a reading (over once a second one passes), read (the last reading stands).
 REZ_NONE, REZ_READING, REZ_PAUSED, REZ_READ = range(4)
@@ -782,16 +791,20 @@ def drift_rezeroed(dp: np.ndarray, ds: np.ndarray, scale: float) -> None:
     """The estimator re-zeroed the friction in air: it now takes ``scale`` times the
     identified friction (the curve ``identify`` wrote, at scale 1). That is a measurement
     of the friction itself, no model's inference: beyond ``drift_sigmas`` standard deviations
-    of the identified friction it is the friction drift, named at once and sized by it (the
-    scale converges through the air move from the one before: a reading already beyond is
-    beyond). Within them it is none, once the reading is over (:func:`_read`): a level
-    in the cut named friction before (a cut at one depth and feed cannot tell it from a
-    gain) was the process gain."""
+    of the identified friction it is the friction drift, named once the reading has stood
+    beyond them for REZERO_STAND_S and sized by it (the scale converges through the air move
+    from the one before: a drift's reading, once beyond, stays beyond). Within them it is
+    none, once the reading is over (:func:`_read`): a level in the cut named friction before
+    (a cut at one depth and feed cannot tell it from a gain) was the process gain."""
     if dp[D_ON] == 0.0 or not (dp[D_FRICTION] > 0.0 and math.isfinite(scale)):
         return
     ds[DS_REZEROED], ds[DS_SCALE] = REZ_READING, scale
     size, std = scale - 1.0, pymax(dp[D_FRICTION_STD], REZERO_STD)
-    if abs(size) > dp[D_SIGMAS] * std:
+    if abs(size) <= dp[D_SIGMAS] * std:
+        ds[DS_BEYOND] = 0.0
+        return
+    ds[DS_BEYOND] += dp[D_PERIOD]
+    if ds[DS_BEYOND] >= REZERO_STAND_S - 1e-9:
         _raise(ds, FRICTION, size, std, 0.0)
 
 
@@ -801,7 +814,7 @@ def _read(dp: np.ndarray, ds: np.ndarray) -> None:
     the air, or the estimator stopped reading): the last scale stands. Within
     ``drift_sigmas`` of the identified friction, a level named friction with a gain beside it
     was the gain."""
-    ds[DS_REZEROED] = REZ_READ
+    ds[DS_REZEROED], ds[DS_BEYOND] = REZ_READ, 0.0
     std = pymax(dp[D_FRICTION_STD], REZERO_STD)
     if (abs(ds[DS_SCALE] - 1.0) <= dp[D_SIGMAS] * std and int(ds[DS_ALARM]) == FRICTION
             and ds[DS_ALARM_ALT] != 0.0):
