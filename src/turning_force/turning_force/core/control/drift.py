@@ -44,9 +44,9 @@ identified friction's uncertainty (for REZERO_STAND_S of the reading) is the fri
 Without an air move, a friction drift is an offset of a few percent of the cut's force: at the
 job's start, where the depth is known, it stands out of the process model's own error
 (:func:`model_error`, a fraction of a percent on the generated machines), but at one feed it
-is also a gain of a few percent. The alarm
-names both, the friction first until a re-zero has measured it (the one the loop has not
-checked since commissioning); a re-zero that finds the friction unchanged turns it to the gain.
+is also a gain of a few percent. The alarm names both, the friction first until a re-zero has
+measured it (the one the loop has not checked since commissioning); a re-zero that finds the
+friction unchanged turns it to the gain.
 
 Members within ``drift_sigmas`` standard deviations of the identified value, and gains or
 offsets within that many of the identified process model's own error (the slow part of its
