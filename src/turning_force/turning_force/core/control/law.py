@@ -214,7 +214,8 @@ class ControllerBase(Settings):
     tools_file: str = shared.tools_file()
     quantiser: str = setting('error_feedback', 'How a request becomes a PMC level: the '
                              "bridge's nearest level, or error feedback (noise shaping: the "
-                             'levels sent average to the request)',
+                             'levels sent average to the request); the oscillation reaction '
+                             'sends its requests with error feedback always',
                              choices=('nearest', 'error_feedback'))
     unreachable_after_s: float = setting(1.0, 'A request held at the end of the table this long '
                                          '(150 % with the force below the reference, 0 % with '
