@@ -205,8 +205,8 @@ PARAMS = D_MODELS + N_MODELS * M_FIELDS
  DS_SINCE, DS_ALARM, DS_ALARM_SIZE, DS_ALARM_STD, DS_ALARMS, DS_ALARM_ALT,
  DS_CUT_S, DS_LAPSE, DS_REZEROED, DS_SCALE, DS_CORRECT, DS_STEP, DS_STEP_MS, DS_COUNT,
  DS_COUNT_RUN, DS_SQ, DS_SQQ, DS_SQF, DS_L1, DS_LF, DS_LFF, DS_LY, DS_LYY, DS_LYF,
- DS_ADOPTED, DS_ADOPTED_SIZE, DS_BEYOND) = range(36)
-DS_HIST = 36
+ DS_ADOPTED, DS_ADOPTED_SIZE, DS_BEYOND, DS_NEXT, DS_NEXT_SINCE) = range(38)
+DS_HIST = 38
 # The re-zero: none yet, reading (its scale converging through the air move), a control
 # period without a reading (over once a second one passes), read (the last reading stands).
 REZ_NONE, REZ_READING, REZ_PAUSED, REZ_READ = range(4)
@@ -739,13 +739,21 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
     if cause == NONE or (cause != standing and not levels):
         # a lapse shorter than the process's own transient (the force falling as the tool
         # leaves the work, or at a depth step, which no model of the feed follows) pauses
-        # the cause standing; a longer one ends it
+        # the cause standing; a longer one ends it. A cause found all through the lapse
+        # stands from its first finding, not from the lapse's end (DS_NEXT).
+        same = int(ds[DS_NEXT]) == cause or (
+            cause in (GAIN, FRICTION) and int(ds[DS_NEXT]) in (GAIN, FRICTION))
+        ds[DS_NEXT_SINCE] = ds[DS_NEXT_SINCE] + h if cause != NONE and same else (
+            h if cause != NONE else 0.0)
+        ds[DS_NEXT] = cause
         if standing != NONE and ds[DS_LAPSE] + h < dp[D_SETTLE]:
             ds[DS_LAPSE] += h
             return
-        ds[DS_CAUSE], ds[DS_SINCE], ds[DS_LAPSE] = cause, 0.0, 0.0
+        ds[DS_CAUSE], ds[DS_LAPSE] = cause, 0.0
+        ds[DS_SINCE] = pymax(ds[DS_NEXT_SINCE] - h, 0.0)
+        ds[DS_NEXT], ds[DS_NEXT_SINCE] = NONE, 0.0
         return
-    ds[DS_LAPSE] = 0.0
+    ds[DS_NEXT], ds[DS_NEXT_SINCE], ds[DS_LAPSE] = NONE, 0.0, 0.0
     # a level drift stands while its attribution to gain or friction changes: the alarm
     # names the one that explains the window best now
     ds[DS_CAUSE], ds[DS_SIZE] = cause, size
