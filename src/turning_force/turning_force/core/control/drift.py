@@ -200,7 +200,8 @@ PARAMS = D_MODELS + N_MODELS * M_FIELDS
 # square before, the window's weight over all its segments (the segment's is DS_S1), and that
 # weight where the step's run began; the lag drift (cause, size) the law took into its model
 # (drift_adopt_model: update.controller_update; 0: none); how long the re-zero's reading has
-# stood beyond the band (REZERO_STAND_S).
+# stood beyond the band (REZERO_STAND_S); the cause found through the standing one's lapse,
+# and for how long in a row.
 (DS_APPLIED, DS_AT, DS_STARTED, DS_IN_CUT, DS_S1, DS_SF, DS_SFF, DS_CAUSE, DS_SIZE,
  DS_SINCE, DS_ALARM, DS_ALARM_SIZE, DS_ALARM_STD, DS_ALARMS, DS_ALARM_ALT,
  DS_CUT_S, DS_LAPSE, DS_REZEROED, DS_SCALE, DS_CORRECT, DS_STEP, DS_STEP_MS, DS_COUNT,

@@ -736,7 +736,7 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
         return
     request = out[OUT_PCT]
     continuous = cp[C_CONT] != 0.0
-    if continuous or (cp[C_EF] == 0.0 and not reacting):   # the reaction's: REACT_SHAPED
+    if continuous or (cp[C_EF] == 0.0 and not reacting):   # the reaction's: shaped
         sent = request
     else:
         wanted = clip(cp, request + cs[CS_CARRY])
