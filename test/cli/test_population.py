@@ -77,6 +77,20 @@ def test_the_commissioning_flow_runs_on_a_machine(experiments_dir):
     assert math.isfinite(metrics['steady_mean_abs_error_n'])
 
 
+def test_a_law_that_holds_most_plants_is_not_lost_to_a_few_it_fails_on(experiments_dir):
+    # Population seed 42's #92 (150 ms of dead time, a 7 rad/s servo damped at 0.4, a taper):
+    # the predictive law held 32 of 51 plants, the sliding mode law 6, yet scored worse while a
+    # plant far out counted 10 times the band (verification.MAX_COST): 7.33 N on the machine
+    # against the oracle's 2.24 N; now 2.54 N, in band.
+    machine = draw(93, 42)[92]
+    assert not machine.drift
+    done = commission(machine, experiments_dir)
+    assert 'force_controller.controller=mpc' in done.chosen.sets
+    metrics = run_job(machine, done.written, experiments_dir)
+    assert metrics['steady_mean_abs_error_n'] <= BAND_STEADY_N
+    assert metrics['ripple_p2p_n'] <= BAND_RIPPLE_N
+
+
 @pytest.fixture(scope='module')
 def park_commissioned(experiments_dir):
     """Park's Fig. 8 machine with Kim's 80 ms dead time, commissioned before it drifts (every
