@@ -742,10 +742,9 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
         # leaves the work, or at a depth step, which no model of the feed follows) pauses
         # the cause standing; a longer one ends it. A cause found all through the lapse
         # stands from its first finding, not from the lapse's end (DS_NEXT).
-        same = int(ds[DS_NEXT]) == cause or (
-            cause in (GAIN, FRICTION) and int(ds[DS_NEXT]) in (GAIN, FRICTION))
-        ds[DS_NEXT_SINCE] = ds[DS_NEXT_SINCE] + h if cause != NONE and same else (
-            h if cause != NONE else 0.0)
+        found = int(ds[DS_NEXT])
+        same = found == cause or (cause in (GAIN, FRICTION) and found in (GAIN, FRICTION))
+        ds[DS_NEXT_SINCE] = 0.0 if cause == NONE else (ds[DS_NEXT_SINCE] if same else 0.0) + h
         ds[DS_NEXT] = cause
         if standing != NONE and ds[DS_LAPSE] + h < dp[D_SETTLE]:
             ds[DS_LAPSE] += h
