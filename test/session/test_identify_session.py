@@ -293,3 +293,24 @@ def test_identify_writes_one_tools_section_keeping_the_others(commissioning, cap
     assert main(['identify', str(commissioning), '--depths-mm', '1:3', '--tool', '2',
                  '--plants', '4']) == 2
     assert '--out TOOLS_FILE is needed' in capfd.readouterr().err
+
+
+def test_identify_says_where_the_job_runs_past_the_measured_friction(commissioning, capfd,
+                                                                     tmp_path):
+    # The commissioning session ran Park's spindle at 600 rpm: its air staircase's fastest
+    # level, 150 % of 0.2 mm/rev, is 180 mm/min. The G96 facing cut's clamp, 1500 rpm, feeds the
+    # axis at up to 450 mm/min, where the estimator holds the curve's end: identify says so,
+    # on stderr and in the file it writes. Fig. 8's job (600 rpm) stays inside: no word.
+    out = tmp_path / 'facing.yaml'
+    assert main(['identify', str(commissioning), '--job',
+                 str(EXPERIMENTS / 'facing_g96.yaml'), '--plants', '2', '--out', str(out)]) == 0
+    err = capfd.readouterr().err
+    said = ('friction: the air move measured it up to 180 mm/min; facing_g96 feeds the axis at '
+            'up to 450 mm/min (150 % at 1500 rpm)')
+    assert f'turning-force: warning: {said}' in err
+    assert 'record the commissioning air move with the spindle at 1500 rpm' in err
+    assert f'# warning: {said}' in out.read_text()
+    assert main(['identify', str(commissioning), '--job',
+                 str(EXPERIMENTS / 'park1998_fig8.yaml'), '--plants', '2',
+                 '--out', str(tmp_path / 'fig8.yaml')]) == 0
+    assert 'warning' not in capfd.readouterr().err

@@ -617,7 +617,7 @@ def _identify(args: argparse.Namespace) -> int:
     from turning_force.core.control import drift
     from turning_force.core.experiment import assignments, parse_set
     from turning_force.core.identify import IdentifySettings
-    from turning_force.core.verification import verify
+    from turning_force.core.verification import friction_beyond_reach, verify
     from turning_force.session.identify import cut_depth_mm, format_parameters, identify_sessions
 
     depths = _job_depths(args)
@@ -662,9 +662,14 @@ def _identify(args: argparse.Namespace) -> int:
               + (' (no candidate holds as many plants as the uncommissioned defaults, within 1 N'
                  ' of them on the identified plant, and nearer the band: none of the identified'
                  ' settings is written)' if chosen.name == 'defaults' else ''))
+    # a job that runs the axis faster than the air move measured the friction at
+    beyond = friction_beyond_reach(ident, job)
+    if beyond:
+        print(f'turning-force: warning: {beyond}', file=sys.stderr)
     servo = ident.servo
     header = [
         f'turning-force identify {" ".join(map(str, args.bags))}',
+        *([f'warning: {beyond}'] if beyond else []),
         f'PMC dead time {ident.dead_time_s.value * 1e3:.1f} +/- '
         f'{ident.dead_time_s.std * 1e3:.2g} ms; feed servo {servo.model} (residual '
         f'{servo.residual_rms:.3g} mm/min); K_s d {ident.ksd_n_mm.value:.0f} +/- '

@@ -233,6 +233,14 @@ class Identification:
         return self.process['ksd_n_mm']
 
     @property
+    def friction_reach_mm_min(self) -> float:
+        """The fastest feed at which the air move measured the friction [mm/min]: beyond it
+        the estimator holds Eq. 25's end value, a guess. A production session's friction is
+        its prior's, measured to that curve's end."""
+        fastest = self.friction.parameters.get('fastest_feed_mm_min')
+        return fastest.value if fastest is not None else self.friction_model.max_feed_mm_min
+
+    @property
     def equivalent_time_constant_s(self) -> float:
         """The servo's first-order equivalent: the mean delay of its step response, ``tau_s``
         for the first-order model and ``2 zeta / w_n`` for the second-order one."""
@@ -690,6 +698,7 @@ def _identify_friction(recordings: Sequence[Recording], segments: Sequence[_Segm
         raise IdentifyError(f'{names}: the air move holds no two positive feeds: the friction '
                             'curve (Park Eq. 25) needs two or more')
     v, i = v[inside], i[inside]
+    measured = v_max   # the fastest plateau: where the curve stops being measured
     # The curve's vertex at the creep feed (5 % of the programmed feed, Park's 6 mm/min at 120),
     # not at the slowest level measured: below that level the slide still moves, and a job that
     # runs slower (a faster spindle's 10 % is below the staircase's 20 %) meets the curve
@@ -721,6 +730,8 @@ def _identify_friction(recordings: Sequence[Recording], segments: Sequence[_Segm
         'at_max_feed_a': Estimate(at_max, math.sqrt(max(var_max, 0.0)), 'A'),
         'curvature_a_per_mm_min2': Estimate(float(theta[0]), math.sqrt(cov[0, 0]),
                                             'A/(mm/min)^2'),
+        # beyond it the estimator holds the curve's end, a guess (friction_reach_mm_min)
+        'fastest_feed_mm_min': Estimate(float(measured), 0.0, 'mm/min'),
     }
     model = FrictionModel(float(theta[0]), float(theta[1]), v_min, v_max)
     return Fit('park1998_eq25', params, float(np.sqrt(np.mean(residual ** 2))), 'A',

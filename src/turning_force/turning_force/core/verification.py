@@ -45,7 +45,7 @@ from turning_force.core.identify import Identification
 from turning_force.core.kernel.simulate import simulate
 
 __all__ = ['BAND_RIPPLE_N', 'BAND_STEADY_N', 'CANDIDATES', 'MAX_COST', 'Prediction', 'cost',
-           'draw_plants', 'plant_sets', 'verify']
+           'draw_plants', 'friction_beyond_reach', 'plant_sets', 'verify']
 
 BAND_STEADY_N, BAND_RIPPLE_N = 5.0, 25.0
 # What the identified model leaves open, at least (see the module's text).
@@ -83,6 +83,40 @@ PER_LAW = 4          # the best of each law on the identified plant go on to eve
 MAX_COST = 5.0
 SLACK_N = 1.0        # how much worse than the defaults on the identified plant is allowed
 KALMAN = 'force_estimator.kalman_force_noise_n'
+
+
+# How far past the fastest feed the air move measured the friction at a job may run before
+# ``identify`` says so: the curve's end is held beyond it (Park Eq. 25), and 10 % further on
+# the simulated lathe's curve (0.60 A at 6 mm/min, 0.35 A at 300) moves the friction by 0.02 A
+# at most, about 3 N of force.
+FRICTION_REACH_MARGIN = 0.1
+
+
+def friction_beyond_reach(ident: Identification, job: Experiment) -> str:
+    """Where the job's axis runs faster than the commissioning's air move measured the
+    friction at, a line that says so ('' where it does not). The axis feed is the feed per
+    revolution times the spindle speed (G95): the job's fastest is its programmed feed at the
+    table's highest level at its fastest spindle speed, under constant surface speed (G96)
+    the program's clamp. Beyond the reach the estimator holds the curve's end value, and a
+    curve still falling there leaves the estimate off by its fall: a G96 facing cut (500 ->
+    1500 rpm) on a machine commissioned at 654 rpm (population seed 42 #2, measured to 196
+    mm/min) held 10 N above the reference from the clamp on; commissioned at 1500 rpm, the
+    fit found the curve's end at 297 mm/min and the cut held 1.3 N."""
+    from turning_force.core.pmc.overrides import get_table
+
+    plant, c = job.plant, job.controller
+    rpm = max(plant.css_max_spindle_rpm if plant.css_surface_speed_m_min > 0.0
+              else plant.spindle_speed_rpm, c.spindle_speed_rpm)
+    top_pct = get_table(c.override_table).max_pct
+    fastest = c.programmed_feed_mm_rev * rpm * top_pct / 100.0
+    reach = ident.friction_reach_mm_min
+    if not fastest > (1.0 + FRICTION_REACH_MARGIN) * reach:
+        return ''
+    return (f'friction: the air move measured it up to {reach:.0f} mm/min; {job.run.name} '
+            f'feeds the axis at up to {fastest:.0f} mm/min ({top_pct:g} % at {rpm:.0f} rpm), '
+            "where the estimator holds the curve's end (Park Eq. 25) and a friction that "
+            'goes on falling reads as force: record the commissioning air move with the '
+            f'spindle at {rpm:.0f} rpm')
 
 
 def cost(steady_n: float, ripple_n: float) -> float:
