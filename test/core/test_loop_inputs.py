@@ -144,6 +144,41 @@ def test_override_cancel_mid_cut_stops_regulating_within_a_second():
     assert run.chain.alarm[k:].all()
 
 
+def test_an_overload_hold_the_axis_does_not_obey_sets_the_stop_request():
+    # Fig. 8 with override cancel from 6 s and the overload limit at 1,000 N: the gate hands
+    # the feed back (6-7 s), and at the 3 mm step (8 s) the programmed feed cuts 1,320 N
+    # (2200 N/mm^2 x 3 mm x 0.2 mm/rev). The overload hold writes 0 %, which the machine
+    # ignores: the stop request (a feed hold apart from the override) is set, and the
+    # decision says why.
+    limit = ['pmc_bridge.overload_force_n=1000.0']
+    run = run_core(load_experiment(FIG8).with_sets(
+        [*limit, 'lathe_sim.override_cancel_span_s=[6.0, 12.0]']))
+    t, chain = run.result.trace['t_s'], run.chain
+    held = np.flatnonzero(chain.reason == int(Reason.OVERLOAD_HOLD))
+    assert held.size and 8.0 <= t[held[0]] < 8.2
+    assert not chain.stop_request[:held[0]].any()
+    assert chain.stop_request[held[0]:].all()
+    assert np.all(run.result.trace['force_n'][held[0] + 50:] > 1000.0)   # it still cuts
+    # Obeyed, a hold stops the axis and asks for nothing more: Fig. 8's depth steps overshoot
+    # by 264 N (the goldens), over a 700 N limit.
+    obeyed = run_core(load_experiment(FIG8).with_sets(['pmc_bridge.overload_force_n=700.0']))
+    assert np.any(obeyed.chain.reason == int(Reason.OVERLOAD_HOLD))
+    assert not obeyed.chain.stop_request.any()
+
+
+def test_the_gate_says_a_hold_is_not_obeyed():
+    gate = gate_in_cut()
+    gate.on_estimate(2500.0)   # over overload_force_n (2,000 N): held at 0 %
+    decision = feed_blocks(gate, 0.5 * 120.0, 1)
+    assert decision.reason == Reason.OVERLOAD_HOLD and not decision.stop_request
+    # The axis runs on at 50 % (the envelope of 0 % applied closes within a few lags).
+    decision = feed_blocks(gate, 0.5 * 120.0, 150, k0=201)
+    assert decision.reason == Reason.OVERLOAD_HOLD and decision.applied_pct == 0.0
+    assert decision.stop_request and decision.alarm
+    assert 'the axis does not stop (at 50 % of the programmed feed' in decision.detail
+    assert 'stop request set' in decision.detail
+
+
 @pytest.mark.parametrize('path', sorted(EXPERIMENTS.glob('*.yaml')), ids=lambda p: p.stem)
 def test_no_false_alarm_on_the_shipped_experiments(path):
     assert _first_trip_s(run_core(load_experiment(path))) is None

@@ -587,6 +587,19 @@ def _judge(gp: np.ndarray, gs: np.ndarray, t: float, dec: np.ndarray) -> None:
 
 
 @compiled
+def _hold_ignored(gp: np.ndarray, gs: np.ndarray) -> bool:
+    """The gate holds the feed (an overload, a tool breakage, the overload reaction's hold)
+    and the axis does not follow the override (the feed-follow check has tripped): the
+    override cannot stop it (override cancel M49, a ladder that does not copy it), and the
+    stop request, a feed hold the PMC takes apart from the override, is what is left. On
+    population seed 42's #34 (override cancel from 5 s, a x3.5 depth step then) the overload
+    hold wrote 0 % and the force stayed at 2,305 N, over the 2,000 N limit, to the end."""
+    holding = (gs[GS_HOLD] != HOLD_NONE or gs[GS_BREAK] != BREAK_NONE
+               or (gs[GS_REACTED] != 0.0 and gp[G_REACTION] == REACTION_HOLD))
+    return holding and gs[GS_F_TRIPPED] != 0.0
+
+
+@compiled
 def gate_decide(gp: np.ndarray, gs: np.ndarray, levels: np.ndarray, t: float,
                 dec: np.ndarray) -> None:
     """OverrideGate.decide: the override for now (DEC_*), the state as it is."""
@@ -595,8 +608,8 @@ def gate_decide(gp: np.ndarray, gs: np.ndarray, levels: np.ndarray, t: float,
     dec[DEC_ALARM] = 1.0 if (gs[GS_BREAK] != BREAK_NONE or gs[GS_REACTED] != 0.0
                              or gs[GS_HOLD] != HOLD_NONE or gs[GS_F_TRIPPED] != 0.0
                              or gs[GS_TOOL_BAD] != 0.0) else 0.0
-    dec[DEC_STOP] = 1.0 if (gs[GS_REACTED] != 0.0
-                            and gp[G_REACTION] == REACTION_STOP) else 0.0
+    dec[DEC_STOP] = 1.0 if ((gs[GS_REACTED] != 0.0 and gp[G_REACTION] == REACTION_STOP)
+                            or _hold_ignored(gp, gs)) else 0.0
     dec[DEC_ENGAGED] = gs[GS_ENGAGED]
 
 
@@ -862,7 +875,7 @@ class OverrideGate:
         requested = float(state[GS_REQ])
         again = '; re-arm to resume'
         if code == GD_HOLD:
-            return self._hold_text() + again
+            return self._hold_text() + self._ignored_text() + again
         texts = {
             GD_NONE: '',
             GD_DISARMED: ('not armed: programmed feed' if s.hand_back_pct >= 100.0
@@ -889,9 +902,9 @@ class OverrideGate:
                       'with a section comes'),
         }
         if code == GD_BREAKAGE:
-            text = self._breakage_text() + again
+            text = self._breakage_text() + self._ignored_text() + again
         elif code == GD_REACTION_HOLD:
-            text = self._reaction_text() + again
+            text = self._reaction_text() + self._ignored_text() + again
         elif code == GD_STAND:
             text = _STAND_DOWNS[int(a)]
         elif code == GD_FOLLOW:
@@ -911,6 +924,14 @@ class OverrideGate:
                     f'recent level {level:.0f} N')
         return (f'tool breakage: force {force:.0f} N is {1.0 - force / level:.0%} below its '
                 f'recent level {level:.0f} N while the program says the tool cuts')
+
+    def _ignored_text(self) -> str:
+        """A hold the axis does not obey, as the decision's detail says it ('' if obeyed)."""
+        if not _hold_ignored(self._params, self._state):
+            return ''
+        return (f'; the axis does not stop (at {float(self._state[GS_F_ACTUAL]):.0f} % of the '
+                'programmed feed, override cancel or a ladder that does not copy the '
+                'override?): stop request set')
 
     def _follow_text(self) -> str:
         s, state = self.settings, self._state
