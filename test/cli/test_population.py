@@ -12,12 +12,25 @@ from turning_force.commands.population import (
     JOBS,
     commission,
     draw,
+    identified_sets,
     identify_machine,
     job_experiment,
     park_drifts,
     run_job,
 )
-from turning_force.core.verification import BAND_RIPPLE_N, BAND_STEADY_N
+from turning_force.core.kernel.simulate import simulate
+from turning_force.core.verification import (
+    BAND_RIPPLE_N,
+    BAND_STEADY_N,
+    entry_depths_mm,
+    entry_override_pct,
+    verify,
+)
+
+# Issue 16's interrupted cut: three entries, at 1, 2 and 3 mm.
+INTERRUPTED = ['lathe_sim.depth_times_s=[0.0, 3.0, 4.0, 7.0, 8.0]',
+               'lathe_sim.depth_mm=[1.0, 0.0, 2.0, 0.0, 3.0]', 'experiment.duration_s=11.0',
+               'lathe_sim.depth_interpolation=step', 'force_controller.quantiser=error_feedback']
 
 
 def test_the_same_seed_draws_the_same_machines_and_another_seed_others():
@@ -132,3 +145,36 @@ def test_a_production_cut_keeps_a_right_friction_curve(experiments_dir):
     assert ident.friction.model == 'prior'
     errors = [ident.process[f'friction_error_at_{end}_a'] for end in ('min', 'max')]
     assert max(abs(e.value) / e.std for e in errors) > 2.0   # what the old test passed
+
+
+def test_the_depths_a_program_enters_the_work_at():
+    assert entry_depths_mm(job_experiment(draw(1, 15)[0]).with_sets(
+        INTERRUPTED).plant.depth_profile) == (1.0, 2.0, 3.0)
+    starts = {job: entry_depths_mm(job_experiment(replace(draw(1, 15)[0], job=job))
+                                   .plant.depth_profile) for job in JOBS}
+    assert starts == {'steps': (1.0,), 'taper': (1.0,), 'long': (1.5,), 'deep': (1.0,),
+                      'interrupted': (2.0, 2.0, 2.0)}
+
+
+def test_identify_lowers_the_entry_feed_where_the_deepest_entry_would_overshoot(
+        experiments_dir):
+    # Population seed 42's #11: K_s 1788 N/mm^2 and Kienzle's g 0.64 cut 887 N at 3 mm and the
+    # product's 30 % entry feed, 1915 x 0.3^0.64 (the force falls slower than the feed): 20 %
+    # gives 684 N, 10 % 438 N: the highest level whose force settles under the 500 N reference.
+    machine = replace(draw(12, 42)[11], drift='', drifted={})
+    job = job_experiment(machine, experiments=experiments_dir).with_sets(INTERRUPTED)
+    ident, cut_depth = identify_machine(machine, experiments_dir)
+    assert entry_override_pct(ident, job, (1.0, 2.0, 3.0), cut_depth) == 10.0
+    assert entry_override_pct(ident, job, (1.0,), cut_depth) is None   # 296 N at 1 mm
+    identified, monitor = identified_sets(machine, ident, cut_depth, depths_mm=(1.0, 3.0),
+                                          experiments=experiments_dir)
+    assert 'pmc_bridge.air_cut_override_pct=10.0' in identified
+    chosen = verify(job, ident, tuple(identified), cut_depth, plants=5,
+                    seed=machine.seed + machine.index)[0]
+    written = [*chosen.sets, *monitor]
+    # The issue's bound: at most 100 N over the reference at any entry, in band in the cut.
+    clean = simulate(job.with_sets(written)).metrics
+    assert clean['entry_overshoot_n'] <= 100.0
+    assert clean['steady_mean_abs_error_n'] <= BAND_STEADY_N
+    hot = simulate(job.with_sets([*written, 'pmc_bridge.air_cut_override_pct=30.0'])).metrics
+    assert hot['entry_overshoot_n'] > 300.0

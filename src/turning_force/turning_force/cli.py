@@ -617,7 +617,12 @@ def _identify(args: argparse.Namespace) -> int:
     from turning_force.core.control import drift
     from turning_force.core.experiment import assignments, parse_set
     from turning_force.core.identify import IdentifySettings
-    from turning_force.core.verification import friction_beyond_reach, verify
+    from turning_force.core.verification import (
+        entry_depths_mm,
+        entry_override_pct,
+        friction_beyond_reach,
+        verify,
+    )
     from turning_force.session.identify import cut_depth_mm, format_parameters, identify_sessions
 
     depths = _job_depths(args)
@@ -633,8 +638,17 @@ def _identify(args: argparse.Namespace) -> int:
                              args.ksd_margin)
     controller, estimator = found['force_controller'], found['force_estimator']
     low, high = float(controller['smc_ksd_min_n_mm']), float(controller['smc_ksd_max_n_mm'])
+    # the entry feed for the depths the job enters at (--depths-mm: its deepest)
+    entry_depths = entry_depths_mm(job.plant.depth_profile) if args.job else depths[1:]
+    entry = entry_override_pct(ident, job, entry_depths, cut_depth)
+    if entry is not None:
+        found['pmc_bridge'] = {'air_cut_override_pct': entry}
+        entry_line = (f'entry feed: {entry:g} % (pmc_bridge.air_cut_override_pct; at '
+                      f"{job.bridge.air_cut_override_pct:g} % the force at the job's deepest "
+                      f'entry, {max(entry_depths):g} mm, would settle over the reference)')
     identified = [*assignments('force_controller', controller),
-                  *assignments('force_estimator', estimator)]
+                  *assignments('force_estimator', estimator),
+                  *assignments('pmc_bridge', found.get('pmc_bridge', {}))]
     predictions = verify(job, ident, identified, cut_depth, plants=args.plants)
     chosen = predictions[0]
     for assignment in chosen.sets[len(identified):]:   # the chosen law's own settings
@@ -650,6 +664,7 @@ def _identify(args: argparse.Namespace) -> int:
         # every fit with its parameters (value, std, unit), residual, samples and BIC
         print(json.dumps({**dataclasses.asdict(ident), 'cut_depth_mm': cut_depth,
                           'force_controller': controller, 'force_estimator': estimator,
+                          'pmc_bridge': found.get('pmc_bridge', {}),
                           'predictions': [dataclasses.asdict(p) for p in predictions],
                           'chosen': chosen.name}))
     else:
@@ -662,6 +677,8 @@ def _identify(args: argparse.Namespace) -> int:
               + (' (no candidate holds as many plants as the uncommissioned defaults, within 1 N'
                  ' of them on the identified plant, and nearer the band: none of the identified'
                  ' settings is written)' if chosen.name == 'defaults' else ''))
+        if entry is not None:
+            print(entry_line)
     # a job that runs the axis faster than the air move measured the friction at
     beyond = friction_beyond_reach(ident, job)
     if beyond:
@@ -681,6 +698,7 @@ def _identify(args: argparse.Namespace) -> int:
         f'For jobs cutting {depths[0]:g}-{depths[1]:g} mm deep (identify --depths-mm or --job): '
         'another depth range, identify again',
         *(f'predicted {p.line()}' for p in predictions),
+        *([entry_line] if entry is not None and chosen.name != 'defaults' else []),
         f'{PREDICTION} ' + json.dumps({'law': chosen.name, 'steady_n': chosen.steady_n,
                                         'mean_n': chosen.mean_n, 'ripple_n': chosen.ripple_n,
                                         'in_band': chosen.in_band, 'plants': chosen.plants}),
@@ -698,7 +716,8 @@ def _write_tool_section(args: argparse.Namespace,
                         sections: Mapping[str, Mapping[str, Any]]) -> None:
     """``identify --tool N --out TOOLS_FILE``: the identified controller settings as tool N's
     section of a tools file (core/tools.py), its other part (the bridge's limits) and the other
-    tools' sections kept. The estimator's settings are the machine's (its feed drive), not a
+    tools' sections kept, but for the entry feed where identify lowered it for the tool's depths
+    (:func:`~turning_force.core.verification.entry_override_pct`). The estimator's settings are the machine's (its feed drive), not a
     tool's: identify without --tool writes them."""
     from turning_force.core.tools import load_tools_file, save_tool_section
 
@@ -710,6 +729,8 @@ def _write_tool_section(args: argparse.Namespace,
     section['force_controller'] = {
         name: value if isinstance(value, (str, bool)) else float(f'{float(value):.6g}')
         for name, value in sections['force_controller'].items()}
+    if 'pmc_bridge' in sections:   # the tool's entry feed, beside its other limits
+        section['pmc_bridge'] = {**section.get('pmc_bridge', {}), **sections['pmc_bridge']}
     save_tool_section(path, args.tool, section)
     if not args.json:
         print(f'tool {args.tool}: its section written to {path} (the other tools kept); the '

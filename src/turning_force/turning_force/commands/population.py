@@ -33,7 +33,12 @@ from turning_force.core.identify import Identification, IdentifySettings
 from turning_force.core.kernel.simulate import simulate
 from turning_force.core.plant.drive import FeedDriveSettings
 from turning_force.core.pmc.shopfloor import ShopFloorSettings
-from turning_force.core.verification import Prediction, verify
+from turning_force.core.verification import (
+    Prediction,
+    entry_depths_mm,
+    entry_override_pct,
+    verify,
+)
 
 __all__ = ['JOBS', 'PARK_DRIFTS', 'Commissioned', 'Machine', 'commission', 'draw',
            'identified_sets', 'identify_machine', 'park_drifts', 'run_job']
@@ -225,6 +230,11 @@ def identified_sets(machine: Machine, ident: Identification, cut_depth: float,
     job = job_experiment(machine, after_drift=False, experiments=experiments)
     found = ident.parameters(depths, cut_depth, job.controller.reference_force_n)
     identified = [a for node, params in found.items() for a in assignments(node, params)]
+    # the entry feed for the depths the program enters at (for other depths, the deepest)
+    entry = entry_override_pct(ident, job, entry_depths_mm(job.plant.depth_profile)
+                               if depths_mm is None else depths[1:], cut_depth)
+    if entry is not None:
+        identified += assignments('pmc_bridge', {'air_cut_override_pct': entry})
     # the program's start is known for the machine's own job, not for other depths
     monitor = drift.identified(ident, job, depths, cut_depth,
                                job.plant.depth_profile if depths_mm is None else None)

@@ -218,12 +218,19 @@ def _rezero(ep: np.ndarray, es: np.ndarray, force: float, dt: float, feed: np.nd
         slowest = min(slowest, abs(feed[i]))
     if slowest < fmin:
         return
+    # Friction opposes the motion: read along it. Every feed of the block is at least fmin
+    # from standstill, so one sign holds for all; a window summed across a reversal (an
+    # underdamped servo ringing through zero after the override drops at an exit) summed
+    # readings of both signs, whose model came near zero: the ratio threw the scale to its
+    # bound (population seed 42 #14 at a 20 % entry feed, 0.994 -> 0.500 in one window; the
+    # next cuts 45 N high).
+    sign = 1.0 if feed[0] > 0.0 else -1.0
     for i in range(n):
-        work[n + i] = friction_current(fa, fb, fmin, fmax, feed[i])
+        work[n + i] = sign * friction_current(fa, fb, fmin, fmax, feed[i])
     model = pairwise_sum(work, n, n)
     if abs(model) < 1e-9 * n:
         return
-    es[ES_WINDOW + W_READ] += n * (mean_q - ep[E_MAP_OFF]) - per * tail_sum
+    es[ES_WINDOW + W_READ] += sign * n * (mean_q - ep[E_MAP_OFF]) - per * tail_sum
     es[ES_WINDOW + W_MODEL] += model
     es[ES_WINDOW + W_TIME] += n * dt
     if es[ES_WINDOW + W_TIME] >= REZERO_HOLD_S:
