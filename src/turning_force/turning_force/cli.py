@@ -677,7 +677,7 @@ def _identify(args: argparse.Namespace) -> int:
               + (' (no candidate holds as many plants as the uncommissioned defaults, within 1 N'
                  ' of them on the identified plant, and nearer the band: none of the identified'
                  ' settings is written)' if chosen.name == 'defaults' else ''))
-        if entry is not None:
+        if entry is not None and chosen.name != 'defaults':
             print(entry_line)
     # a job that runs the axis faster than the air move measured the friction at
     beyond = friction_beyond_reach(ident, job)
@@ -716,9 +716,10 @@ def _write_tool_section(args: argparse.Namespace,
                         sections: Mapping[str, Mapping[str, Any]]) -> None:
     """``identify --tool N --out TOOLS_FILE``: the identified controller settings as tool N's
     section of a tools file (core/tools.py), its other part (the bridge's limits) and the other
-    tools' sections kept, but for the entry feed where identify lowered it for the tool's depths
-    (:func:`~turning_force.core.verification.entry_override_pct`). The estimator's settings are the machine's (its feed drive), not a
-    tool's: identify without --tool writes them."""
+    tools' sections kept, but for the entry feed where identify lowered it for the tool's
+    depths (:func:`~turning_force.core.verification.entry_override_pct`). The estimator's
+    settings are the machine's (its feed drive), not a tool's: identify without --tool writes
+    them."""
     from turning_force.core.tools import load_tools_file, save_tool_section
 
     if not args.out:
