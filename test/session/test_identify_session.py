@@ -272,8 +272,14 @@ def test_identify_writes_one_tools_section_keeping_the_others(commissioning, cap
     result = cli_json(capfd, ['identify', str(commissioning), '--out', str(tools), '--json',
                               '--depths-mm', '1:3', '--tool', '2', '--plants', '4'])
     after = load_tools_file(tools)
-    assert after[1] == before[1] and after[2]['pmc_bridge'] == before[2]['pmc_bridge']
+    # Tool 2's limits are kept but its entry feed: verified on its own 300 N reference, its
+    # 40 % would enter the deepest cut (3 mm) at 2420 N/mm x 3 x 0.2 mm/rev x 0.4 = 581 N on
+    # this lathe (Park's steel read 10 % high); 30 % 436 N, 20 % 290 N: 20 %.
+    assert after[1] == before[1]
+    assert after[2]['pmc_bridge'] == {**before[2]['pmc_bridge'], 'air_cut_override_pct': 20.0}
+    assert result['pmc_bridge'] == {'air_cut_override_pct': 20.0}
     written = after[2]['force_controller']
+    assert written['reference_force_n'] == 300.0   # the tool's, kept
     assert written['model_dead_time_s'] == pytest.approx(
         result['force_controller']['model_dead_time_s'], rel=1e-5)
     assert 'force_estimator' not in after[2]   # the machine's, not a tool's

@@ -634,6 +634,8 @@ def _identify(args: argparse.Namespace) -> int:
         raise TurningForceError('--depths-mm needs --cut-depth-mm: the sessions do not say '
                                 'how deep the commissioning cut was')
     job = _verification_job(args, sessions[0].experiment, depths)
+    if args.tool is not None:   # the tool's own reference and limits
+        job = job.with_sets(_tool_limits(args))
     found = ident.parameters(depths, cut_depth, job.controller.reference_force_n,
                              args.ksd_margin)
     controller, estimator = found['force_controller'], found['force_estimator']
@@ -712,12 +714,29 @@ def _identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _tool_limits(args: argparse.Namespace) -> list[str]:
+    """``identify --tool N``: the tool's reference and its bridge limits, from its section of
+    the tools file ``--out`` where it has one, as assignments: the job is verified, and the
+    entry feed judged, on what the tool cuts with."""
+    from turning_force.core.tools import load_tools_file
+
+    path = Path(args.out) if args.out else None
+    if path is None or not path.exists():
+        return []
+    section = load_tools_file(path).get(args.tool, {})
+    reference = section.get('force_controller', {}).get('reference_force_n')
+    return [*([f'force_controller.reference_force_n={reference!r}'] if reference else []),
+            *(f'pmc_bridge.{key}={value!r}'
+              for key, value in section.get('pmc_bridge', {}).items())]
+
+
 def _write_tool_section(args: argparse.Namespace,
                         sections: Mapping[str, Mapping[str, Any]]) -> None:
     """``identify --tool N --out TOOLS_FILE``: the identified controller settings as tool N's
-    section of a tools file (core/tools.py), its other part (the bridge's limits) and the other
-    tools' sections kept, but for the entry feed where identify lowered it for the tool's
-    depths (:func:`~turning_force.core.verification.entry_override_pct`). The estimator's
+    section of a tools file (core/tools.py), its reference, its other part (the bridge's
+    limits) and the other tools' sections kept, but for the entry feed where identify lowered
+    it for the tool's depths (:func:`~turning_force.core.verification.entry_override_pct`),
+    all of which the verification cut with (:func:`_tool_limits`). The estimator's
     settings are the machine's (its feed drive), not a tool's: identify without --tool writes
     them."""
     from turning_force.core.tools import load_tools_file, save_tool_section
@@ -727,9 +746,12 @@ def _write_tool_section(args: argparse.Namespace,
                                 'tools file whose section for the tool it writes)')
     path = Path(args.out)
     section = load_tools_file(path).get(args.tool, {}) if path.exists() else {}
-    section['force_controller'] = {
+    # the tool's reference is the shop's choice (or its teach-in's), not a result: kept
+    kept = {key: value for key, value in section.get('force_controller', {}).items()
+            if key == 'reference_force_n'}
+    section['force_controller'] = {**kept, **{
         name: value if isinstance(value, (str, bool)) else float(f'{float(value):.6g}')
-        for name, value in sections['force_controller'].items()}
+        for name, value in sections['force_controller'].items()}}
     if 'pmc_bridge' in sections:   # the tool's entry feed, beside its other limits
         section['pmc_bridge'] = {**section.get('pmc_bridge', {}), **sections['pmc_bridge']}
     save_tool_section(path, args.tool, section)
