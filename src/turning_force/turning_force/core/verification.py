@@ -148,23 +148,22 @@ def entry_override_pct(ident: Identification, job: Experiment,
     identified process's error and the loop's moves after the entry: allowing the entry force
     10 % over the reference, seed 42's #14 (121 ms of dead time, a servo damped at 0.33, 545 N
     at 3 mm and 30 %) entered 116 N over; at 20 % (365 N), 45 N."""
+    from turning_force.core.control.drift import start_feed_mm_min
     from turning_force.core.pmc.overrides import get_table
 
     c, ceiling = job.controller, job.bridge.air_cut_override_pct
     if not (ceiling > 0.0 and entry_depths):
         return None
     table = get_table(c.override_table)
-    g = ident.process['cutting_exponent'].value
-    # the force at the programmed feed at the deepest entry
-    full = ident.ksd_n_mm.value * max(entry_depths) / cut_depth_mm * c.programmed_feed_mm_rev
-    allowed = c.reference_force_n
+    # the level [%] at which the deepest entry's force settles at the reference
+    holding = 100.0 * start_feed_mm_min(ident, job, max(entry_depths) / cut_depth_mm) / \
+        c.programmed_feed_rate_mm_min
+    top = min(ceiling, holding)
     lowest = min(level for level in table.levels_pct if level > 0.0)
     if table.continuous:
-        level = max(min(ceiling, 100.0 * (allowed / full) ** (1.0 / g)), lowest)
+        level = max(top, lowest)
     else:
-        passing = [level for level in table.levels_pct
-                   if 0.0 < level <= ceiling and full * (level / 100.0) ** g <= allowed]
-        level = max(passing) if passing else lowest
+        level = max([level for level in table.levels_pct if 0.0 < level <= top] or [lowest])
     return level if level < ceiling else None
 
 
