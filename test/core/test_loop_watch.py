@@ -728,3 +728,23 @@ def test_a_program_without_air_moves_is_flagged(tmp_path, sets, warned):
     run_lockstep(experiment, tmp_path / 'session')
     said = [m for m in estimator_warnings(tmp_path / 'session') if 'no air move' in m]
     assert bool(said) == warned, said
+
+
+@pytest.mark.parametrize(('measured_to', 'warned'), [
+    (40.0, True),    # the facing cut's axis: 30 mm/min at the entry, 58-63 from 0.5 s on
+    (1000.0, False),  # the 150 % at the 1500 rpm clamp is 450 mm/min: never past 1,100
+    (0.0, False),    # not given: nothing said
+])
+def test_an_axis_past_the_measured_friction_is_said(tmp_path, measured_to, warned):
+    # The estimator holds Park Eq. 25's end past the fastest feed the friction was measured at
+    # (identify writes friction_measured_to_mm_min); half a second over 10 % past it is said.
+    from turning_force.commands.run import run_lockstep
+
+    experiment = load_experiment(FIG8.parent / 'facing_g96.yaml').with_sets([
+        f'force_estimator.friction_measured_to_mm_min={measured_to!r}',
+        'experiment.duration_s=2.0'])
+    run_lockstep(experiment, tmp_path / 'session')
+    said = [m for m in estimator_warnings(tmp_path / 'session') if 'friction was measured' in m]
+    assert bool(said) == warned, said
+    if warned:
+        assert f'past the {measured_to:.0f} mm/min the friction was measured to' in said[0]

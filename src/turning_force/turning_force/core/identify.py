@@ -275,12 +275,14 @@ class Identification:
     def estimator_parameters(self, reference_force_n: float | None = None) -> dict[str, float]:
         """The ``force_estimator`` parameters: friction (Eq. 25) and the force noise, at the
         job's reference where it is given (the fluctuation grows with the force), else as in
-        the commissioning cut; and tau_c, whose tail of the cut force the friction re-zero
-        takes off what it reads in air (:func:`.estimation.estimator._rezero`)."""
+        the commissioning cut; tau_c, whose tail of the cut force the friction re-zero
+        takes off what it reads in air (:func:`.estimation.estimator._rezero`); and the
+        fastest feed the friction was measured at, past which the estimator node says so."""
         noise = (self.force_noise_n.value if reference_force_n is None
                  else self.noise_at_n(reference_force_n))
         return {**self.friction_model.parameters(), 'kalman_force_noise_n': noise,
-                'model_cutting_time_constant_s': self.process['cutting_time_constant_s'].value}
+                'model_cutting_time_constant_s': self.process['cutting_time_constant_s'].value,
+                'friction_measured_to_mm_min': self.friction_reach_mm_min}
 
     def parameters(self, depths_mm: tuple[float, float], cut_depth_mm: float,
                    reference_force_n: float, margin: float = 0.1,

@@ -19,6 +19,7 @@ import math
 import sys
 from typing import Any
 
+import numpy as np
 from rclpy.node import Node
 from std_msgs.msg import Float64
 from turning_force_msgs.msg import ForceEstimate, ServoCurrents
@@ -27,6 +28,7 @@ from turning_force.core import kernel
 from turning_force.core.estimation.estimator import ForceEstimator, rezeroed_text
 from turning_force.core.estimation.settings import EstimateStatus, EstimatorSettings
 from turning_force.core.estimation.settings import ForceEstimate as Estimate
+from turning_force.core.plant.drive import CurrentBlock
 from turning_force.nodes.convert import (
     estimate_to_msg,
     last_sample_ns,
@@ -47,6 +49,9 @@ FRICTION_CORRECTION_TOPIC = 'force/friction_correction'
 
 # How a re-zero's estimate detail begins (estimator.rezeroed_text).
 REZEROED = rezeroed_text(1.0).split(':')[0]
+# The axis past the measured friction by more than this share, for this long, is said
+# (verification.FRICTION_REACH_MARGIN, identify's own check on the job file).
+REACH_MARGIN, REACH_S = 0.1, 0.5
 
 
 class ForceEstimatorNode(Node):
@@ -67,6 +72,7 @@ class ForceEstimatorNode(Node):
         self._logged_scale = 1.0
         self._rezeroed_s = math.nan   # when an air move last re-zeroed the friction [node s]
         self._rezero_warned_s = -math.inf
+        self._past_reach_s = 0.0   # how long the axis has run past the measured friction
         self.create_timer(STALE_CHECK_S, timer_callback(self._check_stale))
 
     def _reconfigure(self, settings: EstimatorSettings) -> None:
@@ -97,7 +103,8 @@ class ForceEstimatorNode(Node):
             self.diagnostics.watch('servo/currents', stale_after_s=5 * period)
             self.diagnostics.received('servo/currents')
             self._watching = True
-        estimate = self._estimator.update(servo_currents_to_block(msg))
+        block = servo_currents_to_block(msg)
+        estimate = self._estimator.update(block)
         if estimate.status == EstimateStatus.INVALID_INPUT:
             self.get_logger().warning(f'servo/currents: {estimate.detail}',
                                       throttle_duration_sec=1.0)
@@ -105,6 +112,7 @@ class ForceEstimatorNode(Node):
         elif estimate.status == EstimateStatus.SATURATED:
             self.diagnostics.warn(estimate.detail)
         self._watch_rezero(estimate)
+        self._watch_reach(block)
         scale = self._estimator.friction_scale
         if abs(scale - self._logged_scale) > 0.02:   # log a re-zero once per 2 % of change
             self.get_logger().info(f'friction re-zeroed in air: {scale:.3f} x calibrated')
@@ -139,6 +147,29 @@ class ForceEstimatorNode(Node):
                 f'{settings.rezero_stale_s:g} s): a drift of the feed drive friction goes '
                 'into the force estimate unseen; add an air move to the program, or '
                 're-commission', log=True)
+
+
+    def _watch_reach(self, block: CurrentBlock) -> None:
+        """The axis past the fastest feed the friction was measured at
+        (``friction_measured_to_mm_min``) by over REACH_MARGIN for REACH_S: a WARN says so,
+        once each time it gets there. Past it the estimate holds Park Eq. 25's end value; on
+        population seed 42's #2, commissioned at 654 rpm (measured to 196 mm/min), a G96
+        facing cut held 10 N over the reference from the spindle's clamp (1500 rpm) on."""
+        reach = self.parameters.current.friction_measured_to_mm_min
+        if reach <= 0.0 or block.feed_rate_mm_min.size == 0:
+            return
+        fastest = float(np.max(np.abs(block.feed_rate_mm_min)))
+        if not fastest > (1.0 + REACH_MARGIN) * reach:
+            self._past_reach_s = 0.0
+            return
+        before = self._past_reach_s
+        self._past_reach_s += block.feed_rate_mm_min.size * block.sample_period_s
+        if before < REACH_S <= self._past_reach_s:
+            self.diagnostics.warn(
+                f'the axis runs at {fastest:.0f} mm/min, past the {reach:.0f} mm/min the '
+                "friction was measured to (friction_measured_to_mm_min): the estimate holds "
+                "the curve's end there (Park Eq. 25), and a friction still falling reads as "
+                'force; re-commission with the air move at this spindle speed', log=True)
 
 
 main = node_main(ForceEstimatorNode)

@@ -97,6 +97,12 @@ class EstimatorSettings(FeedDriveSettings):
                                     'air move has re-zeroed the friction for this long (a '
                                     'program without one: friction that drifts goes unseen); '
                                     '0: no warning', 's', low=0.0, high=86400.0)
+    friction_measured_to_mm_min: float = setting(
+        0.0, 'The fastest feed the friction curve was measured at (identify writes it: its air '
+        "move's fastest level); past it the estimate holds the curve's end (Park Eq. 25), and "
+        'a WARN on /diagnostics says so where the axis runs over 10 % faster for half a '
+        "second (a faster spindle than the commissioning's, a G96 cut); 0: not said",
+        'mm/min', low=0.0, high=1e6, cite='Park 1998, Eq. 25')
     model_cutting_time_constant_s: float = setting(
         0.05, "Friction re-zero: the cutting force's time constant tau_c (Park Eq. 1; identify "
         'writes the identified one): the re-zero takes the tail of the force the tool left, '
