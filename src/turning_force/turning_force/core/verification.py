@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from turning_force.core.estimation.settings import FRICTION_REACH_MARGIN
 from turning_force.core.experiment import Experiment
 from turning_force.core.identify import Identification
 from turning_force.core.kernel.simulate import simulate
@@ -86,13 +87,6 @@ PER_LAW = 4          # the best of each law on the identified plant go on to eve
 MAX_COST = 5.0
 SLACK_N = 1.0        # how much worse than the defaults on the identified plant is allowed
 KALMAN = 'force_estimator.kalman_force_noise_n'
-
-
-# How far past the fastest feed the air move measured the friction at a job may run before
-# ``identify`` says so: the curve's end is held beyond it (Park Eq. 25), and 10 % further on
-# the simulated lathe's curve (0.60 A at 6 mm/min, 0.35 A at 300) moves the friction by 0.02 A
-# at most, about 3 N of force.
-FRICTION_REACH_MARGIN = 0.1
 
 
 def friction_beyond_reach(ident: Identification, job: Experiment) -> str:

@@ -26,7 +26,11 @@ from turning_force_msgs.msg import ForceEstimate, ServoCurrents
 
 from turning_force.core import kernel
 from turning_force.core.estimation.estimator import ForceEstimator, rezeroed_text
-from turning_force.core.estimation.settings import EstimateStatus, EstimatorSettings
+from turning_force.core.estimation.settings import (
+    FRICTION_REACH_MARGIN,
+    EstimateStatus,
+    EstimatorSettings,
+)
 from turning_force.core.estimation.settings import ForceEstimate as Estimate
 from turning_force.core.plant.drive import CurrentBlock
 from turning_force.nodes.convert import (
@@ -49,9 +53,8 @@ FRICTION_CORRECTION_TOPIC = 'force/friction_correction'
 
 # How a re-zero's estimate detail begins (estimator.rezeroed_text).
 REZEROED = rezeroed_text(1.0).split(':')[0]
-# The axis past the measured friction by more than this share, for this long, is said
-# (verification.FRICTION_REACH_MARGIN, identify's own check on the job file).
-REACH_MARGIN, REACH_S = 0.1, 0.5
+# How long the axis runs past the measured friction (FRICTION_REACH_MARGIN) before it is said.
+REACH_S = 0.5
 
 
 class ForceEstimatorNode(Node):
@@ -148,18 +151,18 @@ class ForceEstimatorNode(Node):
                 'into the force estimate unseen; add an air move to the program, or '
                 're-commission', log=True)
 
-
     def _watch_reach(self, block: CurrentBlock) -> None:
         """The axis past the fastest feed the friction was measured at
-        (``friction_measured_to_mm_min``) by over REACH_MARGIN for REACH_S: a WARN says so,
-        once each time it gets there. Past it the estimate holds Park Eq. 25's end value; on
-        population seed 42's #2, commissioned at 654 rpm (measured to 196 mm/min), a G96
-        facing cut held 10 N over the reference from the spindle's clamp (1500 rpm) on."""
+        (``friction_measured_to_mm_min``) by over FRICTION_REACH_MARGIN for REACH_S: a WARN
+        says so, once each time it gets there. Past it the estimate holds Park Eq. 25's end
+        value; on population seed 42's #2, commissioned at 654 rpm (measured to 196 mm/min),
+        a G96 facing cut held 10 N over the reference from the spindle's clamp (1500 rpm)
+        on."""
         reach = self.parameters.current.friction_measured_to_mm_min
         if reach <= 0.0 or block.feed_rate_mm_min.size == 0:
             return
         fastest = float(np.max(np.abs(block.feed_rate_mm_min)))
-        if not fastest > (1.0 + REACH_MARGIN) * reach:
+        if not fastest > (1.0 + FRICTION_REACH_MARGIN) * reach:
             self._past_reach_s = 0.0
             return
         before = self._past_reach_s

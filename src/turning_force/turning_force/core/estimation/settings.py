@@ -30,8 +30,8 @@ from turning_force.core.plant.drive import (
 )
 from turning_force.core.settings import setting
 
-__all__ = ['EstimateStatus', 'EstimatorSettings', 'ForceEstimate', 'air_cut_point',
-           'calibrate_friction']
+__all__ = ['FRICTION_REACH_MARGIN', 'EstimateStatus', 'EstimatorSettings', 'ForceEstimate',
+           'air_cut_point', 'calibrate_friction']
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -40,6 +40,11 @@ FloatArray = npt.NDArray[np.float64]
 RESYNC_BLOCKS = 3
 # A sample past this many times the sensor's range is corrupt, not a saturated reading.
 IMPLAUSIBLE_RANGE_FACTOR = 2.0
+# How far past the fastest feed the air move measured the friction at the axis may run before
+# it is said (``friction_measured_to_mm_min``; ``identify --job`` from the job file): past it
+# the curve's end is held (Park Eq. 25), and 10 % further on the simulated lathe's curve (0.60
+# A at 6 mm/min, 0.35 A at 300) moves the friction by 0.02 A at most, about 3 N of force.
+FRICTION_REACH_MARGIN = 0.1
 
 
 class EstimateStatus(enum.IntEnum):
