@@ -10,10 +10,12 @@ right cause named within 5 s of cutting, and alarms on the unchanged machine. ``
 every machine's job as that one of the generator's (a taper, say) instead; ``--flow
 identified`` cuts with the identified model under the default law (the sliding mode law),
 no verification; ``--set NODE.PARAM=VALUE`` (repeated) is laid over the settings each job is
-cut with (after commissioning: the verification does not see it)::
+cut with (after commissioning: the verification does not see it); ``--approach-s S`` gives
+each job an approach in air before its first cut, as real programs have::
 
     .venv/bin/python test/bench/bench_drift.py --machines 8 --seed 16
     .venv/bin/python test/bench/bench_drift.py --machines 6 --seed 16 --job taper
+    .venv/bin/python test/bench/bench_drift.py --machines 6 --seed 83 --approach-s 1.0
     .venv/bin/python test/bench/bench_drift.py --machines 6 --seed 29 \
         --set force_controller.drift_adopt_model=false
 """
@@ -69,6 +71,9 @@ def main() -> None:
                         help="commissioned (default): the settings the user's flow writes, the "
                              'law closed-loop verification chose with the monitor beside it; '
                              'identified: the identified model under the default law')
+    parser.add_argument('--approach-s', type=float, default=0.0,
+                        help='each job approaches the work in air this long before its first '
+                        'cut (population.approached); identify then writes the reading there')
     parser.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
                         help="laid over the job's settings (repeatable)")
     args = parser.parse_args()
@@ -76,7 +81,8 @@ def main() -> None:
     false_alarms = 0
     for machine in draw(args.machines, args.seed):
         # commissioned as it is
-        machine = replace(machine, drift='', drifted={}, job=args.job or machine.job)
+        machine = replace(machine, drift='', drifted={}, job=args.job or machine.job,
+                          approach_s=args.approach_s)
         if args.flow == 'commissioned':
             commissioned = commission(machine)
             sets = commissioned.written
@@ -103,7 +109,8 @@ def main() -> None:
             cycle = ', oscillation alarm' if result.metrics.get('oscillation_alarms') else ''
             print(f'  {cause:14s} steady {steady:6.2f} N{cycle}, alarm at {at_s:5.2f} s: '
                   f'{first or "none":14s} {result.drift or "-"}')
-    job = f', job {args.job}' if args.job else ''
+    job = (f', job {args.job}' if args.job else '') + (
+        f', an approach of {args.approach_s:g} s in air' if args.approach_s else '')
     print(f'{args.machines} machines, seed {args.seed}{job}: the right cause within '
           f'{DEADLINE_S:g} s: '
           + ', '.join(f'{cause} {n} of {args.machines}' for cause, n in right.items())

@@ -25,11 +25,14 @@ servo) and the numbers behind it.
 
 Run: ``.venv/bin/python test/bench/bench_population.py [--machines 200] [--seed 15]
 [--jobs 2] [--dask ADDRESS | --dask local] [--oracle] [--store FILE.jsonl]
-[--oracle-from FILE.jsonl]``. ``--store`` appends each machine's result as it is done and
-skips the machines already in it (a long run resumes); ``--oracle-from`` takes the oracle of
-an earlier store of the same seed (it depends on the machine and the laws, not on
-commissioning). On a Dask cluster its workers need turning_force and this repository's
-config/ at the same path; ``local`` starts a LocalCluster of ``--jobs`` workers.
+[--oracle-from FILE.jsonl] [--approach-s 1.0] [--drift friction]``. ``--store`` appends each
+machine's result as it is done and skips the machines already in it (a long run resumes);
+``--oracle-from`` takes the oracle of an earlier store of the same seed and jobs (it depends on
+the machine, its job and the laws, not on commissioning). ``--approach-s`` gives every job an
+approach in air before its first cut, as real programs have (``identify`` then writes the
+friction's reading there); ``--drift`` runs one drift's machines only. On a Dask cluster its
+workers need turning_force and this repository's config/ at the same path; ``local`` starts a
+LocalCluster of ``--jobs`` workers.
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ import sys
 import time
 from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -91,7 +95,9 @@ MPC = ('force_controller.controller=mpc',)
 
 
 def true_model(machine: Machine) -> list[str]:
-    """The force_controller's model of the machine as it is at the job."""
+    """The force_controller's model of the machine as it is at the job (and where the job
+    approaches the work in air, the estimator reading the friction there, as ``identify``
+    writes for such a job)."""
     p = {**machine.plant, **machine.drifted}
     sets = [f'force_controller.model_dead_time_s={p["pmc_dead_time_s"]!r}',
             f'force_controller.model_servo_model={p["servo_model"]}',
@@ -106,6 +112,8 @@ def true_model(machine: Machine) -> list[str]:
                  f'force_controller.model_servo_damping={p["servo_damping"]!r}',
                  f'force_controller.model_servo_time_constant_s='
                  f'{2.0 * p["servo_damping"] / p["servo_natural_freq_rad_s"]!r}']
+    if machine.approach_s > 0.0:
+        sets.append('force_estimator.rezero_start_in_air=true')
     return sets
 
 
@@ -129,7 +137,7 @@ def evaluate(machine: Machine, oracle: bool = False,
         'smc true model': [*truth, *SMC],
         'mpc true model': [*truth, *MPC],
     }
-    out: dict[str, Any] = {'index': machine.index}
+    out: dict[str, Any] = {'index': machine.index, 'approach_s': machine.approach_s}
     for column, sets in runs.items():
         if sets is None:
             out[column] = (float('nan'), float('nan'), 0.0, 0.0)
@@ -181,8 +189,9 @@ def alarms(result: dict[str, Any], column: str) -> tuple[float, ...]:
     return (*cell[2:6], *(0.0,) * (6 - max(len(cell), 2)))
 
 
-def read_store(path: Path | None) -> dict[int, dict[str, Any]]:
-    """The results of a ``--store`` file, by machine index (a line cut short is left out)."""
+def read_store(path: Path | None, approach_s: float) -> dict[int, dict[str, Any]]:
+    """The results of a ``--store`` file, by machine index (a line cut short is left out); a
+    store of other jobs (another ``--approach-s``; none written: 0) is refused."""
     out: dict[int, dict[str, Any]] = {}
     if path is None or not path.exists():
         return out
@@ -191,6 +200,10 @@ def read_store(path: Path | None) -> dict[int, dict[str, Any]]:
             result = json.loads(line)
         except json.JSONDecodeError:
             continue
+        if result.get('approach_s', 0.0) != approach_s:
+            sys.exit(f'bench_population: {path}: machine #{result["index"]} was run with '
+                     f'approach_s {result.get("approach_s", 0.0)!r}, not --approach-s '
+                     f'{approach_s!r}: another job')
         out[int(result['index'])] = result
     return out
 
@@ -347,14 +360,22 @@ def main() -> None:
                         '(on its machines only)')
     parser.add_argument('--report-only', action='store_true',
                         help="print the store's machines; run none")
+    parser.add_argument('--approach-s', type=float, default=0.0,
+                        help='each job approaches the work in air this long before its first '
+                        'cut (population.approached)')
+    parser.add_argument('--drift', help="only the machines whose drift names this ('friction', "
+                        "'servo', 'dead time', 'process gain')")
     args = parser.parse_args()
-    known = {i: tuple(r['oracle']) for i, r in read_store(args.oracle_from).items()
+    known = {i: tuple(r['oracle']) for i, r in read_store(args.oracle_from,
+                                                          args.approach_s).items()
              if 'oracle' in r}
     args.oracle = args.oracle or bool(known)
-    machines = draw(args.machines, args.seed)
+    machines = [replace(m, approach_s=args.approach_s) for m in draw(args.machines, args.seed)
+                if args.drift is None or args.drift in m.drift]
     if known:   # the machines the earlier store measured the oracle on
         machines = [m for m in machines if m.index in known]
-    results = {i: r for i, r in read_store(args.store).items() if i < args.machines}
+    results = {i: r for i, r in read_store(args.store, args.approach_s).items()
+               if i < args.machines}
     for index, result in results.items():
         result.setdefault('oracle', known.get(index))
         if result['oracle'] is None:

@@ -32,6 +32,7 @@ from turning_force.core.identify import Estimate, Identification
 from turning_force.core.kernel.batch import run_core
 from turning_force.core.kernel.chain import command_for
 from turning_force.core.kernel.simulate import SimulationResult, simulate
+from turning_force.core.plant.settings import PlantSettings
 
 ROOT = Path(__file__).resolve().parents[2]
 DRIVE = population.DRIVE   # the lathe's friction curve, which a friction drift scales
@@ -587,3 +588,20 @@ def test_the_nodes_pass_the_re_zero_from_the_estimate_to_the_monitor() -> None:
     for _ in range(round(drift.REZERO_STAND_S / settings.control_period_s)):   # standing beyond
         command_for(controller, dataclasses.replace(in_air, detail=rezeroed_text(1.3)))
     assert controller.drift.startswith('friction +30 % (identified 1.00, now 1.30 +- 0.03)')
+
+
+@pytest.mark.parametrize('job', sorted(population.JOBS))
+def test_a_programs_approach_in_air_leaves_its_known_start_as_it_was(job) -> None:
+    # The monitor knows K_s d where the program's depth is known: from its first contact to
+    # its first depth change (drift.first_cut). A program that approaches the work in air
+    # first (population.approached: a second of depth 0 before the job) has the same start,
+    # counted from the contact; before, a start in air gave none (0 s, no depth).
+    program = population.JOBS[job]
+    bare = PlantSettings(depth_times_s=program[0], depth_mm=program[1],
+                         depth_interpolation=program[2]).depth_profile
+    times, depths, interpolation, _ = population.approached(program, 1.0)
+    approached = PlantSettings(depth_times_s=times, depth_mm=depths,
+                               depth_interpolation=interpolation).depth_profile
+    assert approached.depth_mm[0] == 0.0 and approached.at(np.array([0.99]))[0] == 0.0
+    assert drift.first_cut(approached) == drift.first_cut(bare)
+    assert drift.first_cut(bare)[0] > 0.0

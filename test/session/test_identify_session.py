@@ -320,3 +320,19 @@ def test_identify_says_where_the_job_runs_past_the_measured_friction(commissioni
                  str(EXPERIMENTS / 'park1998_fig8.yaml'), '--plants', '2',
                  '--out', str(tmp_path / 'fig8.yaml')]) == 0
     assert 'warning' not in capfd.readouterr().err
+
+
+def test_identify_reads_the_friction_in_the_approach_of_a_job_that_starts_in_air(
+        commissioning, tmp_path):
+    # shopfloor.yaml's program approaches the work in air for a second before its first cut,
+    # as real programs do: there the estimator may read a friction drift too large to tell
+    # from a light cut elsewhere (estimator._rezero). identify writes that for such a job, and
+    # not for Fig. 8's, which starts in the cut.
+    written = {}
+    for job in ('shopfloor', 'park1998_fig8'):
+        out = tmp_path / f'{job}.yaml'
+        assert main(['identify', str(commissioning), '--job', str(EXPERIMENTS / f'{job}.yaml'),
+                     '--plants', '2', '--out', str(out)]) == 0
+        written[job] = yaml.safe_load(out.read_text())['/**/force_estimator']['ros__parameters']
+    assert written['shopfloor']['rezero_start_in_air'] is True
+    assert 'rezero_start_in_air' not in written['park1998_fig8']

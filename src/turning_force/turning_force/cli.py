@@ -621,6 +621,7 @@ def _identify(args: argparse.Namespace) -> int:
         entry_depths_mm,
         entry_override_pct,
         friction_beyond_reach,
+        starts_in_air,
         verify,
     )
     from turning_force.session.identify import cut_depth_mm, format_parameters, identify_sessions
@@ -639,6 +640,8 @@ def _identify(args: argparse.Namespace) -> int:
     found = ident.parameters(depths, cut_depth, job.controller.reference_force_n,
                              args.ksd_margin)
     controller, estimator = found['force_controller'], found['force_estimator']
+    if args.job and starts_in_air(job.plant.depth_profile):   # its approach reads the friction
+        estimator['rezero_start_in_air'] = True
     low, high = float(controller['smc_ksd_min_n_mm']), float(controller['smc_ksd_max_n_mm'])
     # the entry feed for the depths the job enters at (--depths-mm: its deepest)
     entry_depths = entry_depths_mm(job.plant.depth_profile) if args.job else depths[1:]

@@ -37,10 +37,11 @@ from turning_force.core.verification import (
     Prediction,
     entry_depths_mm,
     entry_override_pct,
+    starts_in_air,
     verify,
 )
 
-__all__ = ['JOBS', 'PARK_DRIFTS', 'Commissioned', 'Machine', 'commission', 'draw',
+__all__ = ['JOBS', 'PARK_DRIFTS', 'Commissioned', 'Machine', 'approached', 'commission', 'draw',
            'identified_sets', 'identify_machine', 'park_drifts', 'run_job']
 
 EXPERIMENTS = Path('config/experiments')   # the repository's, from its root
@@ -56,6 +57,7 @@ JOBS: Mapping[str, tuple[tuple[float, ...], tuple[float, ...], str, float]] = {
     'deep': ((0.0, 5.0), (1.0, 3.5), 'step', 10.0),
     'interrupted': ((0.0, 3.0, 4.0, 7.0, 8.0), (2.0, 0.0, 2.0, 0.0, 2.0), 'step', 11.0),
 }
+APPROACH_STEP_S = 0.01   # a taper's entry after an approach: one control period
 DRIFTS = ('dead time', 'process gain', 'friction', 'servo')
 PRODUCT_REACTION = ControllerBase.__dataclass_fields__['oscillation_reaction'].default
 
@@ -70,6 +72,7 @@ class Machine:
     job: str
     drift: str = ''
     drifted: Mapping[str, Any] = field(default_factory=dict)
+    approach_s: float = 0.0   # the job's approach in air before its first cut [s]
 
     def sets(self, *, after_drift: bool) -> list[str]:
         """The machine as ``--set`` assignments (the spindle speed is every node's)."""
@@ -168,7 +171,7 @@ def job_experiment(machine: Machine, *, after_drift: bool = True,
                    experiments: Path = EXPERIMENTS) -> Experiment:
     """Park's Fig. 8 file with the machine's job and the machine (drifted where it drifts),
     with the product's entry feed and oscillation reaction."""
-    times, depths, interpolation, duration = JOBS[machine.job]
+    times, depths, interpolation, duration = approached(JOBS[machine.job], machine.approach_s)
     return load_experiment(experiments / 'park1998_fig8.yaml').with_sets([
         *machine.sets(after_drift=after_drift), f'lathe_sim.depth_times_s={list(times)!r}',
         f'lathe_sim.depth_mm={list(depths)!r}',
@@ -178,6 +181,24 @@ def job_experiment(machine: Machine, *, after_drift: bool = True,
         # entering at the programmed feed, the law alone)
         f'pmc_bridge.air_cut_override_pct={ShopFloorSettings().air_cut_override_pct!r}',
         f'force_controller.oscillation_reaction={PRODUCT_REACTION}'])
+
+
+def approached(job: tuple[tuple[float, ...], tuple[float, ...], str, float], approach_s: float
+               ) -> tuple[tuple[float, ...], tuple[float, ...], str, float]:
+    """A job of :data:`JOBS` after ``approach_s`` in air, as a program approaches the work at
+    the entry feed from its clearance (1 mm at 0.2 mm/rev, 1000 rpm and a 30 % entry feed: 1 s).
+    A taper's depth steps to its first value over :data:`APPROACH_STEP_S`."""
+    times, depths, interpolation, duration = job
+    if approach_s <= 0.0:
+        return job
+    if interpolation == 'linear' and approach_s <= APPROACH_STEP_S:
+        raise ValueError(f'an approach of {approach_s!r} s: a taper needs more than '
+                         f'{APPROACH_STEP_S:g} s')
+    later = tuple(t + approach_s for t in times)
+    if interpolation == 'linear':
+        return ((0.0, approach_s - APPROACH_STEP_S, *later), (0.0, 0.0, *depths), interpolation,
+                duration + approach_s)
+    return (0.0, *later), (0.0, *depths), interpolation, duration + approach_s
 
 
 @dataclass(frozen=True)
@@ -231,6 +252,8 @@ def identified_sets(machine: Machine, ident: Identification, cut_depth: float,
     depths = depths_mm or (min(cut), max(cut))
     job = job_experiment(machine, after_drift=False, experiments=experiments)
     found = ident.parameters(depths, cut_depth, job.controller.reference_force_n)
+    if depths_mm is None and starts_in_air(job.plant.depth_profile):
+        found['force_estimator']['rezero_start_in_air'] = True   # as identify --job writes
     identified = [a for node, params in found.items() for a in assignments(node, params)]
     # the entry feed for the depths the program enters at (for other depths, the deepest)
     entry = entry_override_pct(ident, job, entry_depths_mm(job.plant.depth_profile)

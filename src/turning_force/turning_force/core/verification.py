@@ -49,7 +49,7 @@ from turning_force.core.plant.settings import DepthProfile
 
 __all__ = ['BAND_RIPPLE_N', 'BAND_STEADY_N', 'CANDIDATES', 'MAX_COST', 'Prediction', 'cost',
            'draw_plants', 'entry_depths_mm', 'entry_override_pct', 'friction_beyond_reach',
-           'plant_sets', 'verify']
+           'plant_sets', 'starts_in_air', 'verify']
 
 BAND_STEADY_N, BAND_RIPPLE_N = 5.0, 25.0
 # What the identified model leaves open, at least (see the module's text).
@@ -123,6 +123,13 @@ def entry_depths_mm(program: DepthProfile) -> tuple[float, ...]:
     entries = [depths[0]] if depths[0] > 0.0 else []
     entries += [after for before, after in itertools.pairwise(depths) if before <= 0.0 < after]
     return tuple(entries)
+
+
+def starts_in_air(program: DepthProfile) -> bool:
+    """Whether a program approaches the work in air before its first cut (its depth 0 at
+    t = 0): there the estimator may read the friction before the first contact
+    (``force_estimator.rezero_start_in_air``, which ``identify`` writes for such a job)."""
+    return program.depth_mm[0] <= 0.0 < max(program.depth_mm)
 
 
 def entry_override_pct(ident: Identification, job: Experiment,

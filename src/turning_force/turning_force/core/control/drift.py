@@ -81,6 +81,7 @@ itself goes on comparing the machine with the identified model.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -319,10 +320,17 @@ def first_cut(program: DepthProfile) -> tuple[float, tuple[float, float]]:
     """The job's start, where its depth is known: the time in the cut [s] until the program's
     first depth change, and the depth [mm] there; where it starts on a taper, its first
     FIRST_RAMP_S and the depths [mm] it ramps over. 0 s where the depth never changes (the
-    job's range is its start's). The simulator's program runs in time; a real one runs in
-    distance, and reaches its first change later where the override is below 100 %."""
+    job's range is its start's). A program that approaches the work in air starts at its first
+    contact. The simulator's program runs in time; a real one runs in distance, and reaches
+    its first change later where the override is below 100 %."""
+    depths_mm = program.depth_mm
+    contact = next((k for k, depth in enumerate(depths_mm) if depth > 0.0), 0)
+    if contact > 0:   # the approach in air: the program from its first contact
+        start = program.times_s[contact]
+        program = replace(program, times_s=tuple(t - start for t in program.times_s[contact:]),
+                          depth_mm=depths_mm[contact:])
     changes = program.change_times_s()
-    if not changes or program.depth_mm[0] <= 0.0:   # one depth, or a start in air
+    if not changes or program.depth_mm[0] <= 0.0:   # one depth, or all in air
         return 0.0, (program.depth_mm[0], program.depth_mm[0])
     if changes[0] > 0.0:
         return changes[0], (program.depth_mm[0], program.depth_mm[0])

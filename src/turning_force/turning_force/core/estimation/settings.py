@@ -120,6 +120,13 @@ class EstimatorSettings(FeedDriveSettings):
                                           'rezero_below_n for rezero_after_s is the tool in '
                                           'air too (a friction drift lifts the estimate in '
                                           'air); 0: the level alone', '-', low=0.0, high=0.9)
+    rezero_start_in_air: bool = setting(
+        False, 'Friction re-zero: the session starts with the tool out of the material (the '
+        "program approaches the work in air): an estimate within a friction drift's lift "
+        '(rezero_max_change of the friction above rezero_below_n) is air, as after an exit, '
+        'until it has stood over the lift for 0.1 s (a cut) or read below rezero_below_n for '
+        "rezero_after_s; off where a run may start in a light cut (Park's Fig. 13 cuts at 50 N "
+        "from t = 0). identify --job writes it where the job's program starts in air")
     rezero_max_change: float = setting(0.5, 'Friction re-zero: the scale on the calibrated '
                                        'friction stays within 1 -/+ this', low=0.0, high=0.9,
                                        unit='-')
