@@ -59,7 +59,10 @@ ES_TAIL = 37                                  # the cut force's tail at the last
 ES_READ = 38                                  # the air move's readings taken so far [s]
 ES_CUT = 39                                   # time over the lift in a row [s], to CUT_STAND_S
 ES_CROSSED = 40                               # 1 once the estimate has been over rezero_below_n
-ES_SIZE = 41
+# the scale before the move's last ROLLBACK_S to 2 ROLLBACK_S of readings, before its last
+# snapshot, and the readings since that snapshot [s]
+ES_SNAP = 41                                  # 3 slots
+ES_SIZE = 44
 # The force's level the re-zero's fall is taken from: its mean over this time constant [s]. A
 # fall below rezero_fall_fraction of it is air for as long as the level remembers the cut
 # (about 2 s after an exit from a cut four times the estimate in air), long enough for the
@@ -72,6 +75,15 @@ LEVEL_TIME_CONSTANT_S = 2.0
 # the contact's rise through the lift (87 N at a 30 % entry feed on the lathe's friction)
 # takes tau_c ln((F_c - 40) / (F_c - 87)), 0.1 s at 163 N and tau_c 0.19 s, and is dropped.
 CUT_STAND_S = 0.1
+# An air move ends with a contact, whose force rises through rezero_below_n
+# tau_c ln(F_c / (F_c - rezero_below_n)) after it, and the filter lags that by 10-20 ms: 70 ms
+# at the 30 % entry feed's 148 N and tau_c 0.17 s, where REZERO_HOLD_S kept 20-40 ms of the
+# rise out. The readings before that, weighted at 6 % each by the follow (0.02 s over
+# rezero_time_constant_s), took the scale 1.6 % high on an unchanged machine (population seed
+# 42 #1 with an approach in air: 1.08 -> 2.09 N steady, the sweep's best 1.11 -> 2.09 N). As
+# the move ends, the scale goes back to what it was before its last ROLLBACK_S to
+# 2 ROLLBACK_S of readings [s].
+ROLLBACK_S = 0.05
 # The re-zero's readings wait this long for air after them [s]: a re-entry's force passes
 # rezero_below_n tau_c ln(F_c / (F_c - rezero_below_n)) after the contact (20 ms at the 30 %
 # entry feed's 250 N and tau_c 0.19 s), and the force filter lags a rise some 10-20 ms more
@@ -231,6 +243,9 @@ def _rezero(ep: np.ndarray, es: np.ndarray, force: float, dt: float, feed: np.nd
         es[ES_FALLEN] = 0.0
     es[ES_LEVEL] += (force - es[ES_LEVEL]) * (1.0 - math.exp(-n * dt / LEVEL_TIME_CONSTANT_S))
     if not (es[ES_AIR] >= after or es[ES_FALLEN] >= after):
+        if es[ES_READ] > 0.0:   # the move's end: its last readings held the contact's rise
+            es[ES_SCALE] = es[ES_SNAP]
+            es[ES_DCODE], es[ES_DVAL] = D_REZEROED, es[ES_SCALE]
         for k in range(6):   # readings not followed by a window of air: the cut's rise
             es[ES_WINDOW + k] = 0.0
         es[ES_TAIL] = math.nan
@@ -238,9 +253,11 @@ def _rezero(ep: np.ndarray, es: np.ndarray, force: float, dt: float, feed: np.nd
         return
     tau_c = ep[E_REZ_TAIL]
     decay = math.exp(-dt / tau_c) if tau_c > 0.0 else 0.0
+    if math.isnan(es[ES_TAIL]):   # the re-zero starts
+        es[ES_SNAP], es[ES_SNAP + 1], es[ES_SNAP + 2] = es[ES_SCALE], es[ES_SCALE], 0.0
     if math.isnan(es[ES_TAIL]) and (approach or es[ES_CROSSED] == 0.0):   # no cut yet: no tail
         es[ES_TAIL] = 0.0
-    elif math.isnan(es[ES_TAIL]):   # the re-zero starts: where the tail is
+    elif math.isnan(es[ES_TAIL]):   # where the tail is
         es[ES_TAIL] = _tail_at_start(below if es[ES_AIR] >= after else lifted,
                                      es[ES_AIR] if es[ES_AIR] >= after else es[ES_FALLEN],
                                      force, tau_c) / decay ** n if decay > 0.0 else 0.0
@@ -276,6 +293,9 @@ def _rezero(ep: np.ndarray, es: np.ndarray, force: float, dt: float, feed: np.nd
             scale = es[ES_SCALE]
             window = es[ES_STAGED + W_TIME]
             es[ES_READ] += window
+            es[ES_SNAP + 2] += window
+            if es[ES_SNAP + 2] >= ROLLBACK_S:
+                es[ES_SNAP], es[ES_SNAP + 1], es[ES_SNAP + 2] = es[ES_SNAP + 1], scale, 0.0
             # the air move's mean so far, or the exponential follow where that is faster
             weight = pymax(window / es[ES_READ], 1.0 - math.exp(-window / ep[E_REZ_TAU]))
             ratio = es[ES_STAGED + W_READ] / es[ES_STAGED + W_MODEL]
