@@ -323,16 +323,20 @@ def test_identify_says_where_the_job_runs_past_the_measured_friction(commissioni
 
 
 def test_identify_reads_the_friction_in_the_approach_of_a_job_that_starts_in_air(
-        commissioning, tmp_path):
+        commissioning, capfd, tmp_path):
     # shopfloor.yaml's program approaches the work in air for a second before its first cut,
     # as real programs do: there the estimator may read a friction drift too large to tell
     # from a light cut elsewhere (estimator._rezero). identify writes that for such a job, and
     # not for Fig. 8's, which starts in the cut.
-    written = {}
+    written, said = {}, {}
     for job in ('shopfloor', 'park1998_fig8'):
         out = tmp_path / f'{job}.yaml'
         assert main(['identify', str(commissioning), '--job', str(EXPERIMENTS / f'{job}.yaml'),
                      '--plants', '2', '--out', str(out)]) == 0
         written[job] = yaml.safe_load(out.read_text())['/**/force_estimator']['ros__parameters']
+        said[job] = capfd.readouterr().out
     assert written['shopfloor']['rezero_start_in_air'] is True
     assert 'rezero_start_in_air' not in written['park1998_fig8']
+    assert ("friction: read in shopfloor's approach in air before its first cut "
+            '(force_estimator.rezero_start_in_air)') in said['shopfloor']
+    assert 'rezero_start_in_air' not in said['park1998_fig8']

@@ -684,6 +684,9 @@ def _identify(args: argparse.Namespace) -> int:
                  ' settings is written)' if chosen.name == 'defaults' else ''))
         if entry is not None and chosen.name != 'defaults':
             print(entry_line)
+        if estimator.get('rezero_start_in_air') and chosen.name != 'defaults':
+            print(f"friction: read in {job.run.name}'s approach in air before its first cut "
+                  '(force_estimator.rezero_start_in_air)')
     # a job that runs the axis faster than the air move measured the friction at
     beyond = friction_beyond_reach(ident, job)
     if beyond:
