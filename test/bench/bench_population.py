@@ -381,6 +381,8 @@ def main() -> None:
         if result['oracle'] is None:
             del result['oracle']
     where = f'dask {args.dask}' if args.dask else f'{args.jobs} processes'
+    if args.approach_s > 0.0:
+        where += f'; each job after an approach of {args.approach_s:g} s in air'
     print(f'{len(machines)} machines from seed {args.seed} ({len(results)} in the store); band: '
           f'steady <= {BAND_STEADY_N:g} N and ripple <= {BAND_RIPPLE_N:g} N p-p; {where}\n')
     todo = [] if args.report_only else [m for m in machines if m.index not in results]
