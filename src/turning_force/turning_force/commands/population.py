@@ -246,7 +246,8 @@ def identified_sets(machine: Machine, ident: Identification, cut_depth: float,
     """What ``identify`` writes for the machine's job (for jobs ``depths_mm`` deep, where that
     is given): the identified model (``--set`` assignments for force_controller and
     force_estimator, and pmc_bridge's entry feed where the job's deepest entry needs a lower
-    one: :func:`~turning_force.core.verification.entry_override_pct`), and the drift
+    one: :func:`~turning_force.core.verification.entry_override_pct`; for the machine's own
+    job, ``rezero_start_in_air`` where it approaches the work in air), and the drift
     monitor's settings."""
     cut = [d for d in JOBS[machine.job][1] if d > 0]
     depths = depths_mm or (min(cut), max(cut))
