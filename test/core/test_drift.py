@@ -190,6 +190,12 @@ def generated(seed: int, index: int, job: str = '') -> tuple[population.Machine,
     return machine, identified + monitor
 
 
+# The force's own lag test: what names a lag drift where the feed test is off
+# (drift_feed_test); the tests of it below run with the feed test off, which would otherwise
+# name each of their drifts at the first override step (test_the_feed_test_* below).
+FORCE_ALONE = ['force_controller.drift_feed_test=false']
+
+
 def assert_servo_drift_named(machine: population.Machine, sets: list[str]) -> None:
     """The machine's servo slowed x1.8 is named within 5 s, and nothing on it as it was."""
     p = machine.plant
@@ -219,7 +225,7 @@ def test_a_servo_drift_is_named_where_what_the_bank_leaves_is_slow() -> None:
     # twentieth, of the residual is a lag drift.
     machine, sets = generated(16, 1)
     assert machine.plant['servo_model'] == 'second_order'
-    assert_servo_drift_named(machine, sets)
+    assert_servo_drift_named(machine, [*sets, *FORCE_ALONE])
 
 
 def test_a_cause_found_through_another_s_lapse_stands_from_its_first_finding() -> None:
@@ -253,7 +259,7 @@ def test_a_servo_drift_is_read_in_the_process_lags_transient() -> None:
     # fitted with it, the window starts a tau_c after the entry and holds the loop's moves.
     machine, sets = generated(16, 2)
     assert machine.job == 'long' and machine.plant['cutting_time_constant_s'] > 0.15
-    assert_servo_drift_named(machine, sets)
+    assert_servo_drift_named(machine, [*sets, *FORCE_ALONE])
 
 
 def test_lag_drifts_are_named_on_a_taper() -> None:
@@ -264,6 +270,7 @@ def test_lag_drifts_are_named_on_a_taper() -> None:
     # gain's ramp in the fit (F = K y + R t y + c) the members are compared on what the feed
     # did: each drift named within 5 s, none on the machine as it was.
     machine, sets = generated(29, 0, 'taper')
+    sets = [*sets, *FORCE_ALONE]
     p = machine.plant
     drifts = {'PMC dead time': (0.5 * p['pmc_dead_time_s'], {
                   'pmc_dead_time_s': 1.5 * p['pmc_dead_time_s']}),
@@ -294,6 +301,7 @@ def test_a_depth_step_starts_a_segment_of_the_window() -> None:
     # model (drift_adopt_model); with the loop on it, the monitor, which still compares with
     # the identified model, reads later sizes less well (+60 ms at the end).
     machine, sets = generated(37, 4)
+    sets = [*sets, *FORCE_ALONE]
     assert machine.job == 'long'
     longer = {'pmc_dead_time_s': 1.5 * machine.plant['pmc_dead_time_s']}
     result = simulate(population.job_experiment(replace(machine, drifted=longer)).with_sets(
@@ -605,3 +613,82 @@ def test_a_programs_approach_in_air_leaves_its_known_start_as_it_was(job) -> Non
     assert approached.depth_mm[0] == 0.0 and approached.at(np.array([0.99]))[0] == 0.0
     assert drift.first_cut(approached) == drift.first_cut(bare)
     assert drift.first_cut(bare)[0] > 0.0
+
+
+@pytest.mark.parametrize('drift_change', [['lathe_sim.pmc_dead_time_s=0.12'],
+                                          ['lathe_sim.servo_time_constant_s=0.306']])
+def test_the_feed_test_names_a_lag_drift_at_the_first_override_step(
+        commissioned: list[str], drift_change: list[str]) -> None:
+    # The issue's dead time +50 % and servo x1.8 on Park's machine: the axis feed the DAQ
+    # measures against the bank's members names the drift once the first override step has
+    # come through the (drifted) dead time and the servo has answered for a few periods, and
+    # stood FEED_STAND_S: within the dead time and 0.1 s of the step (0.14-0.15 s measured),
+    # where the force alone (FORCE_ALONE) names it 1.7-2.0 s later.
+    result = simulate(job(commissioned, *drift_change))
+    applied, t = result.trace['applied_override_pct'], result.trace['t_s']
+    step_s = t[np.flatnonzero(np.diff(applied) != 0.0)[0] + 1]
+    named = result.trace['drift_alarm']
+    first = np.flatnonzero(named)[0]
+    dead_s = 0.12 if 'dead' in drift_change[0] else MACHINE.plant['pmc_dead_time_s']
+    assert t[first] <= step_s + dead_s + 0.1, (t[first], step_s)
+    cause, size = (('PMC dead time', 0.04) if 'dead' in drift_change[0] else ('servo', 1.8))
+    assert CAUSES[int(named[first])] == cause, result.drift
+    step = 0.01 if cause == 'PMC dead time' else (drift.SERVO_RATIO - 1.0) * size
+    assert result.trace['drift_size'][first] == pytest.approx(size, abs=step), result.drift
+    alone = simulate(job(commissioned, *drift_change, *FORCE_ALONE))
+    assert alone.metrics['drift_alarm_s'] >= result.metrics['drift_alarm_s'] + 1.0
+
+
+def feed_session(slower: float, rpm_per_period: float = 0.0) -> str:
+    """The drift monitor fed in air, block by block through command_for as the chain and the
+    node feed it: 30 % for 0.5 s, then 100 %, through 50 ms of PMC dead time and a
+    first-order servo ``slower`` times the identified 0.17 s; the measured feed is the
+    servo's mean over each block, sampled every millisecond. ``rpm_per_period``: the spindle
+    speed's change each period, relative (G96). What the monitor says at the end."""
+    settings = ControllerSettings(
+        drift_monitor=True, drift_ksd_min_n_mm=4000.0, drift_ksd_max_n_mm=4000.0,
+        drift_ksd_std=0.01, model_dead_time_s=0.05, model_servo_time_constant_s=0.17,
+        model_cutting_time_constant_s=0.05)
+    controller = make_controller(settings)
+    full = settings.programmed_feed_mm_rev * settings.spindle_speed_rpm
+    pole = math.exp(-1e-3 / (0.17 * slower))
+    levels = [30.0] * 50 + [100.0] * 70
+    feed, rpm = 0.30 * full, settings.spindle_speed_rpm
+    for k, level in enumerate(levels):
+        controller.applied(level, False, 0)
+        level_in = levels[k - 5] if k >= 5 else 30.0   # through the dead time
+        commanded = level_in / 100.0 * full * rpm / settings.spindle_speed_rpm
+        samples = []
+        for _ in range(10):
+            feed = pole * feed + (1.0 - pole) * commanded
+            samples.append(feed)
+        estimate = ForceEstimate(0.01 * (k + 1), 0.0, 0.0, 0.5, 0.4, EstimateStatus.OK, '',
+                                 float(np.mean(samples)))
+        rpm *= 1.0 + rpm_per_period
+        controller.spindle_speed(rpm)
+        assert command_for(controller, estimate) is not None
+    return controller.drift
+
+
+def test_the_feed_test_reads_the_servo_in_air_and_waits_while_the_spindle_speed_moves() -> None:
+    # The override's step in air is enough: no cut, no force. x1.5 is named as the bank's
+    # nearest member, x1.46; the identified servo is not named at all. Under G96 the feed
+    # follows the spindle speed too (through the servo's lag, which the bank on the override
+    # alone does not model): at 3 %/s the test waits, and names nothing.
+    assert feed_session(1.5).startswith('servo slower: time scale x1.46'), feed_session(1.5)
+    assert feed_session(1.0) == ''
+    assert feed_session(1.5, rpm_per_period=0.0003) == ''
+    assert feed_session(1.5, rpm_per_period=0.0001).startswith('servo slower')
+
+
+def test_no_feed_test_alarm_on_population_machines_between_whole_periods() -> None:
+    # Population seed 42 with a 1 s approach, machines whose lag did not drift: #56 (59 ms of
+    # dead time, a 0.10 s servo: the bank holds 5.9 periods by interpolating the override,
+    # and a member a period longer, its feed still at rest, misses the first period of the
+    # response by nothing: FEED_FLOOR), #7 (25 ms, 0.14 s) and #35 (36 ms, 0.10 s).
+    for index in (7, 35, 56):
+        machine = replace(population.draw(index + 1, 42)[index], approach_s=1.0)
+        assert not machine.drift
+        sets = population.commission(machine).written
+        result = simulate(population.job_experiment(machine).with_sets(sets))
+        assert not result.trace['drift_alarm'].any(), (index, result.drift)

@@ -162,13 +162,14 @@ def test_padding_after_a_message_is_read_as_rosbags_reads_it():
     msg = store.get_msgdef(msgtype).cls(
         store.get_msgdef('std_msgs/msg/Header').cls(
             store.get_msgdef('builtin_interfaces/msg/Time').cls(3, 4), 'z'),
-        1.0, 2.0, 3.0, 4.0, 0, 'ok')
+        1.0, 2.0, 3.0, 4.0, 0, 'ok', 5.0)
     raw = bytes(store.serialize_cdr(msg, msgtype))
     padded = raw + b'\x00' * (-len(raw) % 4)
     table, index = decode_all(store, msgtype, [padded, padded, raw + b'\x00' * 8])
     assert index.tolist() == [0, 1]   # 8 bytes after it: not the message's
     assert table.columns['force_n'].tolist() == [1.0, 1.0]
     assert table.text('detail', 1) == 'ok'
+    assert table.columns['feed_rate_mm_min'].tolist() == [5.0, 5.0]
 
 
 def test_an_older_definition_decodes_with_its_own_layout():

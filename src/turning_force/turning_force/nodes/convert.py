@@ -100,6 +100,7 @@ def estimate_to_msg(estimate: ForceEstimate,
     msg.friction_current_a = estimate.friction_current_a
     msg.status = int(estimate.status)
     msg.detail = estimate.detail
+    msg.feed_rate_mm_min = estimate.feed_rate_mm_min
     return msg
 
 
@@ -110,7 +111,8 @@ def estimate_from_msg(msg: ForceEstimateMsg) -> ForceEstimate:
     except ValueError:
         status = EstimateStatus.INVALID_INPUT
     return ForceEstimate(stamp_to_seconds(msg.header.stamp), msg.force_n, msg.force_rate_n_s,
-                         msg.current_q_a, msg.friction_current_a, status, msg.detail)
+                         msg.current_q_a, msg.friction_current_a, status, msg.detail,
+                         msg.feed_rate_mm_min)
 
 
 def tristate(value: bool | None) -> int:

@@ -177,6 +177,12 @@ class Controller:
         monitor's measurement of the friction, :func:`.drift.drift_rezeroed`)."""
         update.control_rezeroed(self._params, self._state, float(scale))
 
+    def feed(self, feed_mm_min: float) -> None:
+        """The axis feed the DAQ measured over the block the next update answers, its mean
+        [mm/min] (ForceEstimate's; NaN: none): the drift monitor's feed test
+        (:func:`.drift.drift_feed`)."""
+        update.control_feed(self._params, self._state, float(feed_mm_min))
+
     def friction_correction(self) -> float:
         """The friction [N] the drift monitor read in the cut since the last call, for the
         estimator to take off its estimate (0: none; :func:`.drift.drift_correction`, whose

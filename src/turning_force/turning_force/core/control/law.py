@@ -337,6 +337,12 @@ class ControllerBase(Settings):
         'changes, and an oscillation alarm raised before lets go (the ring was the drifted '
         "loop's, the model taken its cure; the detector watches afresh); off: the alarm only "
         'says so')
+    drift_feed_test: bool = setting(
+        True, 'Drift monitor: a PMC dead time or servo drift is named from the axis feed the '
+        'DAQ measures against the feed the identified model gives from the override applied '
+        '(within 0.1-0.2 s of an override step, in air or in the cut); off: from the force '
+        'alone, over drift_memory_s (a feed signal that does not come from the one the '
+        'commissioning session identified the servo on)')
 
     def check(self) -> None:
         super().check()

@@ -29,6 +29,7 @@ from turning_force.core.control.drift import (
     NONE,
     SERVO,
     drift_applied,
+    drift_feed,
     drift_rezeroed,
     drift_step,
     drift_tool,
@@ -38,6 +39,7 @@ from turning_force.core.control.law import (
     C_DRIFT,
     C_EF,
     C_EXPONENT,
+    C_FEED_RATE,
     C_GAP,
     C_KIND,
     C_LAW,
@@ -108,8 +110,8 @@ from turning_force.core.control.law import (
     spindle_speed,
 )
 
-__all__ = ['control_applied', 'control_rezeroed', 'control_step', 'control_tool',
-           'controller_applied',
+__all__ = ['control_applied', 'control_feed', 'control_rezeroed', 'control_step', 'control_tool',
+           'controller_applied', 'controller_feed',
            'controller_rezeroed', 'controller_start', 'controller_tool', 'controller_update']
 
 # FeedOverride.REASON_NORMAL: the controller's request went through as asked; REASON_RISE_LIMIT
@@ -814,6 +816,20 @@ def controller_tool(tools: np.ndarray, cp: np.ndarray, cs: np.ndarray, number: f
     law_adopt(int(cp[C_KIND]), cp, cs, NONE, 0.0)   # the tool's commissioned model
     law_reset(int(cp[C_KIND]), cp, cs)
     return row
+
+
+@compiled
+def controller_feed(cp: np.ndarray, cs: np.ndarray, feed_mm_min: float) -> None:
+    """The axis feed the DAQ measured over the block the coming update answers, its mean
+    [mm/min]: the drift monitor's feed test (:func:`.drift.drift_feed`), against the 100 %
+    override's feed rate at the spindle speed in use (``spindle_speed`` first)."""
+    drift_feed(cs[CS_DRIFT:CS_LAW], feed_mm_min, cp[C_FEED_RATE], cp[C_PERIOD])
+
+
+@entry('void(float64[::1], float64[::1], float64)')
+def control_feed(cp: Arr, cs: Arr, feed_mm_min: float) -> None:
+    """:func:`controller_feed` from Python (the controller node, the per-block chain)."""
+    controller_feed(cp, cs, feed_mm_min)
 
 
 @compiled

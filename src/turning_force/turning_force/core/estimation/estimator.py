@@ -62,7 +62,8 @@ ES_CROSSED = 40                               # 1 once the estimate has been ove
 # the scale before the move's last ROLLBACK_S to 2 ROLLBACK_S of readings, before its last
 # snapshot, and the readings since that snapshot [s]
 ES_SNAP = 41                                  # 3 slots
-ES_SIZE = 44
+ES_FEED = 44                                  # the block's mean axis feed [mm/min]
+ES_SIZE = 45
 # The force's level the re-zero's fall is taken from: its mean over this time constant [s]. A
 # fall below rezero_fall_fraction of it is air for as long as the level remembers the cut
 # (about 2 s after an exit from a cut four times the estimate in air), long enough for the
@@ -316,6 +317,7 @@ def estimator_update(ep: np.ndarray, es: np.ndarray, t0: float, dt: float, u: np
     status. ``work`` holds 2 n scratch values (i_q, then the force). The caller has set the
     filter's coefficients for ``dt`` (E_GAIN_DT) where a new filter may start."""
     es[ES_DCODE] = D_NONE
+    es[ES_FEED] = math.nan
     n = u.size
     if n == 0 or v.size != n or angle.size != n or feed.size != n:
         return _invalid(es, D_LENGTHS, 0.0, 0.0)
@@ -406,6 +408,7 @@ def estimator_update(ep: np.ndarray, es: np.ndarray, t0: float, dt: float, u: np
     es[ES_T] = t0 + (n - 1) * dt
     es[ES_F], es[ES_R], es[ES_IQ] = force, rate, mean_q
     es[ES_IFR], es[ES_STATUS] = friction, status
+    es[ES_FEED] = pairwise_sum(feed, 0, n) / n
     return status
 
 
@@ -554,7 +557,7 @@ class ForceEstimator:
             self._last = ForceEstimate(
                 float(state[ES_T]), float(state[ES_F]), float(state[ES_R]),
                 float(state[ES_IQ]), float(state[ES_IFR]), EstimateStatus(status),
-                detail)
+                detail, float(state[ES_FEED]))
         return self._last
 
 

@@ -15,6 +15,7 @@ measured better.
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -147,6 +148,7 @@ class ForceEstimate:
     friction_current_a: float
     status: EstimateStatus = EstimateStatus.OK
     detail: str = ''
+    feed_rate_mm_min: float = math.nan   # the block's mean axis feed, as the DAQ measured it
 
 
 def calibrate_friction(

@@ -227,6 +227,7 @@ class ChainTrace:
     estimated_force_rate_n_s: FloatArray
     current_q_a: FloatArray
     friction_current_a: FloatArray
+    estimated_feed_rate_mm_min: FloatArray     # ForceEstimate.feed_rate_mm_min
     estimate_status: Int8Array                 # EstimateStatus
     requested_override_pct: FloatArray         # NaN where the controller was silent
     reference_n: FloatArray                    # the command's reference; NaN where silent
@@ -261,7 +262,8 @@ class ChainTrace:
         return cls(
             estimated_force_n=floats(), estimated_force_rate_n_s=floats(),
             current_q_a=floats(), friction_current_a=floats(),
-            estimate_status=np.zeros(n, dtype=np.int8), requested_override_pct=floats(),
+            estimated_feed_rate_mm_min=floats(), estimate_status=np.zeros(n, dtype=np.int8),
+            requested_override_pct=floats(),
             reference_n=floats(), sliding_variable=floats(), reference_reachable=flags(True),
             applied_pct=floats(), reason=np.zeros(n, dtype=np.int8), armed=flags(),
             pmc_code=np.zeros(n, dtype=np.int16), gate_requested_pct=floats(),
@@ -274,6 +276,7 @@ class ChainTrace:
         e, command, d = step.estimate, step.command, step.decision
         self.estimated_force_n[k], self.estimated_force_rate_n_s[k] = e.force_n, e.force_rate_n_s
         self.current_q_a[k], self.friction_current_a[k] = e.current_q_a, e.friction_current_a
+        self.estimated_feed_rate_mm_min[k] = e.feed_rate_mm_min
         self.estimate_status[k] = int(e.status)
         if e.detail:
             self.estimate_detail[k] = e.detail
@@ -466,6 +469,7 @@ def _rows_into(jit: Any, rows: FloatArray, trace: ChainTrace, first: int,
     trace.estimated_force_rate_n_s[sl] = r[:, jit.CH_RATE]
     trace.current_q_a[sl] = r[:, jit.CH_IQ]
     trace.friction_current_a[sl] = r[:, jit.CH_IFR]
+    trace.estimated_feed_rate_mm_min[sl] = r[:, jit.CH_FEED]
     trace.estimate_status[sl] = r[:, jit.CH_STATUS]
     trace.requested_override_pct[sl] = np.where(acted, r[:, jit.CH_REQ], np.nan)
     trace.reference_n[sl] = np.where(acted, r[:, jit.CH_REF], np.nan)

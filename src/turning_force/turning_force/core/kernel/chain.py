@@ -58,6 +58,7 @@ def command_for(controller: Controller, estimate: ForceEstimate) -> ControlOutpu
     scale = rezeroed_scale(estimate.detail)
     if scale is not None:
         controller.rezeroed(scale)
+    controller.feed(estimate.feed_rate_mm_min)
     return controller.update(estimate.force_n, estimate.force_rate_n_s)
 
 

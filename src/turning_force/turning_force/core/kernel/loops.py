@@ -38,6 +38,7 @@ from turning_force.core.control.law import (
 )
 from turning_force.core.control.update import (
     controller_applied,
+    controller_feed,
     controller_rezeroed,
     controller_tool,
     controller_update,
@@ -47,6 +48,7 @@ from turning_force.core.estimation.estimator import (
     ES_DCODE,
     ES_DVAL,
     ES_F,
+    ES_FEED,
     ES_IFR,
     ES_IQ,
     ES_R,
@@ -88,7 +90,8 @@ from turning_force.core.pmc.gate import (
 CH_FORCE, CH_RATE, CH_IQ, CH_IFR, CH_STATUS, CH_ACTED, CH_REQ, CH_S, CH_REACH = range(9)
 CH_REF, CH_APPLIED, CH_REASON, CH_ARMED, CH_GATE_REQ, CH_ENGAGED, CH_ALARM = range(9, 16)
 CH_STOP, CH_ERR, CH_DCODE, CH_DVAL = 16, 17, 18, 19   # the estimate's detail: code, 2 values
-CHAIN_COLUMNS = 21
+CH_FEED = 21   # the block's mean axis feed (the estimate's)
+CHAIN_COLUMNS = 22
 
 
 @compiled
@@ -126,6 +129,7 @@ def chain_step(ep: np.ndarray, es: np.ndarray, cp: np.ndarray, cs: np.ndarray,
     spindle_speed(cp, inputs[3])
     acted = (status == OK or status == SATURATED) and math.isfinite(force)  # noqa: SIM109
     if acted:
+        controller_feed(cp, cs, es[ES_FEED])
         controller_update(cp, cs, clevels, force, rate, out)
         gate_on_command(gs, out[OUT_PCT], t_end, out[OUT_REACH])
         # a friction drift the drift monitor read in the cut: the estimator takes it off
@@ -178,6 +182,7 @@ def _chain_row(rows: np.ndarray, k: int, es: np.ndarray, acted: bool, out: np.nd
     rows[k, CH_DCODE], rows[k, CH_DVAL], rows[k, CH_DVAL + 1] = (es[ES_DCODE], es[ES_DVAL],
                                                                  es[ES_DVAL + 1])
     rows[k, CH_REF] = cp[C_REF]
+    rows[k, CH_FEED] = es[ES_FEED]
     rows[k, CH_APPLIED], rows[k, CH_REASON] = dec[DEC_APPLIED], dec[DEC_REASON]
     rows[k, CH_ARMED], rows[k, CH_GATE_REQ] = gs[GS_ARMED], gs[GS_REQ]
     rows[k, CH_ENGAGED], rows[k, CH_ALARM], rows[k, CH_STOP] = (dec[DEC_ENGAGED],
