@@ -189,8 +189,8 @@ STEP_PERIODS = 5
 # the identified one, each with FEED_FLOOR's variance added per sample, for FEED_STAND_S in a
 # row. On population seed 42's first 60 machines with a 1 s approach (each commissioned as
 # the user would, the bank replayed on the blocks their jobs recorded) the ratio reached at
-# most 2 on the 47 that did not drift in their lag, and 39 to 1,300 on the 13 whose servo or
-# dead time did, the drift named 0.10 to 0.20 s after the first override step in the cut.
+# most 1.9 on the 49 that did not drift in their lag, and 48 to 690 on the 11 whose servo or
+# dead time did, the drift named 0.11 to 0.20 s after the first override step in the cut.
 # FEED_FLOOR is the bank's own error: a dead time between whole control periods is held
 # by interpolating the override (DELAY_STD), which misses the feed by up to a few percent of
 # a step's size in the period it arrives; without the floor a member whose delay had not yet
@@ -200,7 +200,7 @@ STEP_PERIODS = 5
 # than FEED_RPM_STEADY the test waits: the feed follows the speed through the servo's lag,
 # and the bank, on the override alone, does not. The member named must follow the feed:
 # its residual's root mean square over the window at most FEED_FIT of the programmed feed
-# (on those 13 drifts at most 1.9 % wherever the ratio passed). A feed that follows no
+# (on those 11 drifts at most 1.9 % wherever the ratio passed). A feed that follows no
 # member is no lag drift: an override the axis does not obey (override cancel, a feed hold,
 # a ladder that does not copy the module's inputs to *FV) left the slowest member, whose
 # feed had moved least, the best by the ratio, and named a dead time of +80 ms that the law
