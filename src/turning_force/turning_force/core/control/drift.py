@@ -487,12 +487,7 @@ def _feed_test(dp: np.ndarray, ds: np.ndarray) -> None:
         ds[at + FSS] = lam * ds[at + FSS] + residual * residual
     floor = ds[DS_FW] * FEED_FLOOR * FEED_FLOOR
     sse0 = ds[DS_MODELS + FSS]
-    best, best_sse = 0, sse0
-    for m in range(1, N_MODELS):
-        if _eligible(dp, m):
-            sse = ds[DS_MODELS + m * S_FIELDS + FSS]
-            if sse < best_sse:
-                best, best_sse = m, sse
+    best, best_sse = _best(dp, ds, True)
     mean = ds[DS_F_SUM] / ds[DS_FW]
     moved = ds[DS_F_SQ] / ds[DS_FW] - mean * mean >= FEED_MOVE * FEED_MOVE
     if (best == 0 or not moved or sse0 + floor <= FEED_RATIO * (best_sse + floor)
@@ -683,6 +678,20 @@ def _effective(ds: np.ndarray, m: int, count: float) -> float:
 
 
 @compiled
+def _best(dp: np.ndarray, ds: np.ndarray, feed: bool) -> tuple[int, float]:
+    """The member that leaves the least residual, of the identified one (0) and those outside
+    its uncertainty (:func:`_eligible`), and that residual: on the measured feed over the feed
+    test's window (``feed``), or on the force over the window's segments."""
+    best, best_sse = 0, ds[DS_MODELS + FSS] if feed else _window_sse(ds, 0)
+    for m in range(1, N_MODELS):
+        if _eligible(dp, m):
+            sse = ds[DS_MODELS + m * S_FIELDS + FSS] if feed else _window_sse(ds, m)
+            if sse < best_sse:
+                best, best_sse = m, sse
+    return best, best_sse
+
+
+@compiled
 def _eligible(dp: np.ndarray, m: int) -> bool:
     """Member m in the bank and outside the identified value's uncertainty."""
     row = D_MODELS + m * M_FIELDS
@@ -835,13 +844,9 @@ def drift_step(dp: np.ndarray, ds: np.ndarray, force: float, engaged: bool,
     sse0 = _window_sse(ds, ref)
     best, best_sse = ref, sse0
     # Where the DAQ gives the axis feed, the feed test names the lag (it measures what the
-    # force only implies); the force's lag test is for a machine without one.
+    # force only implies); the force's lag test is for a machine without one (ref is 0).
     if ds[DS_F_SEEN] == 0.0:
-        for m in range(1, N_MODELS):
-            if _eligible(dp, m):
-                sse = _window_sse(ds, m)
-                if sse < best_sse:
-                    best, best_sse = m, sse
+        best, best_sse = _best(dp, ds, False)
     if _stepped(ds, best, best_sse):
         _unstep(ds, lam, STEP_PERIODS)
         return
