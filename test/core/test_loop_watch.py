@@ -30,6 +30,10 @@ from turning_force.core.control.update import (
     DETUNE_P,
     DETUNE_RATIO,
     FASTEST_RATIO,
+    KICK_GROWTH,
+    KICK_GROWTH_SHARE,
+    KICK_RING,
+    KICK_RISE_SHARE,
     ONSET_RING,
     OSC_CALM,
     OSC_DECAY,
@@ -270,12 +274,18 @@ def test_the_reaction_holds_across_an_interrupted_cut():
     # a cycle set off by a depth step after 4 s of calm: its rise left out of the count,
     # alarmed 2.7 s after the onset
     (23, 22),
+    # a cycle through the gate's air-cut and entry feeds (1,019 N peak to peak): its count
+    # started afresh at each entry, alarmed 3.8 s after the onset
+    (3, 44),
+    # a x3.5 step's return, then a swing out 5 times as far: alarmed at the fourth swing,
+    # 2.4 s after the onset
+    (11, 5),
 ], ids=['trough out of the cut', 'interrupted, trough out of the cut', 'deep step',
         'steps', 'long job, 141 ms', 'long job, 130 ms', 'slowest, 144 ms',
         'slowest, 128 ms', 'kick larger than the cycle',
         'drifting mean', 'long job, g 0.61', 'long job, g 0.78', 'long job, g 0.93',
         'kick with a smaller return', 'slow return under the reaction', 'long job, quickened',
-        'cycle out of a calm spell'])
+        'cycle out of a calm spell', 'cycle through the entry feed', 'growing after a kick'])
 def test_generated_machines_are_alarmed_in_time_and_calmed(seed, index):
     # Machines of the generated population (commands/population.py) of the classes the
     # detector once missed or the reaction once left cycling, judged as the issue does: the
@@ -338,11 +348,15 @@ def alarmed(period_s: float, *sets: str) -> tuple[object, FloatArray, float, int
     return controller, controller.arrays[1], dt, alarm_k
 
 
-def played(extremes: list[tuple[float, float]]) -> tuple[float | None, FloatArray]:
+def played(extremes: list[tuple[float, float]],
+           open_spells: tuple[tuple[float, float, bool], ...] = ()
+           ) -> tuple[float | None, FloatArray]:
     """A controller (no reaction) fed a force error that runs from each (time [s], error [N])
     of ``extremes`` to the next as a half cosine (turning smoothly at each, flat between two
     equal ones), in the cut, its output not fed back: the first alarm's time (None: none) and
-    the controller's state at the end."""
+    the controller's state at the end. Over each (from [s], to [s], engaged) of
+    ``open_spells`` the loop is open: the tool out of the cut (engaged false), or in it with
+    the PMC holding the entry feed (engaged, REASON_AIR_CUT)."""
     experiment = load_experiment(FIG8).with_sets(['force_controller.oscillation_reaction=none'])
     controller = make_controller(experiment.controller)
     dt = experiment.controller.control_period_s
@@ -355,7 +369,11 @@ def played(extremes: list[tuple[float, float]]) -> tuple[float | None, FloatArra
     alarm_s = None
     for tk, e, r in zip(t, error, rate, strict=True):
         out = controller.update(500.0 + e, r)
-        controller.applied(out.override_pct, True, int(Reason.NORMAL))
+        spell = [engaged for t0, t1, engaged in open_spells if t0 <= tk < t1]
+        if spell:
+            controller.applied(30.0, spell[0], int(Reason.AIR_CUT))
+        else:
+            controller.applied(out.override_pct, True, int(Reason.NORMAL))
         if out.oscillating and alarm_s is None:
             alarm_s = float(tk)
     return alarm_s, controller.arrays[1]
@@ -445,6 +463,73 @@ def test_a_stable_loop_s_recovery_from_a_step_out_of_a_calm_spell_is_no_cycle():
                 (6.5, -12.0), (6.8, 8.0), (8.0, 0.0)]
     assert 50.0 / 840.0 < ONSET_RING < 0.57 and OSC_DECAY * 50.0 <= 90.0
     assert OSC_REGULAR * 0.4 >= 0.65
+    alarm_s, _ = played(extremes)
+    assert alarm_s is None
+
+
+def test_a_cycle_through_the_gate_s_air_and_entry_feed_is_alarmed_within_2_s():
+    # An uncommissioned SMC on a slow underdamped servo (bench_loop_watch seed 3's #44): the
+    # loop asks 0 % at each peak and the force falls out of the cut; the gate holds the air-cut
+    # feed, then the entry feed, under which the force overshoots to -40 N and falls back; the
+    # loop closes on that fall (-120 N) and the trough is at -200 N before the next rise to
+    # +300 N, one cycle a second. With the trough in air as the swing's extreme, the fall
+    # after the hold turned the error 0.02-0.05 s after the loop closed (too fast to count: a
+    # noise turn) and every cycle started the count afresh; with the last error in the cut
+    # before the exit as the extreme, the swing was short of the cycle's. The swing runs from
+    # the peak to the trough in air, turned where the force turns after the hold.
+    extremes = [(0.0, 0.0), (0.5, 0.0)]
+    spells = []
+    for k in range(5):
+        t = 0.75 + k
+        extremes += [(t, 300.0), (t + 0.25, -500.0), (t + 0.5, -40.0), (t + 0.7, -200.0)]
+        spells += [(t + 0.2, t + 0.4, False), (t + 0.4, t + 0.6, True)]
+    extremes.append((5.75, 0.0))
+    alarm_s, state = played(extremes, tuple(spells))
+    # the fourth swing from the first peak: the second trough, turned as the error rises
+    # from it (1.75 + 0.7 s, and the hysteresis)
+    assert alarm_s is not None and alarm_s <= 0.75 + 2.0
+    # the cycle's half-period the reaction takes: the counted swings' mean, peak to trough
+    # 0.7 s and trough to peak 0.3 s, the first (untimed) taken as long as the second:
+    # (0.7 + 0.7 + 0.3 + 0.7) / 4 = 0.6 s, each turn read a control period late at most
+    assert abs(state[CS_O_HALF] - 0.6) <= 0.01
+
+
+def test_a_kick_s_third_swing_that_grows_past_the_return_raises_the_alarm():
+    # bench_loop_watch seed 11's #5 (dead time 126 ms, an uncommissioned SMC): a x3.5 depth
+    # step at 5 s out of the noise (turns of 20 N, no calm spell), the force 1,260 N over the
+    # reference, back to 58 N under it in 1.1 s, then 289 N over it in 0.22 s: a relay-like
+    # cycle that rises at 150 % far faster than it falls at 0 %. Its fourth swing came at
+    # 7.42 s, 2.4 s after the step. No stable loop's transient swings out further than it
+    # came back: the third swing alarms.
+    noise = [(0.1 * k, 10.0 * (-1.0) ** k) for k in range(50)]
+    extremes = [*noise, (5.18, 1260.0), (6.30, -58.0), (6.52, 289.0), (7.42, -60.0),
+                (7.64, 265.0), (8.5, 0.0)]
+    assert KICK_RISE_SHARE * 500.0 <= 1260.0 + 10.0
+    assert max(KICK_GROWTH * 58.0, KICK_GROWTH_SHARE * 500.0) <= 289.0
+    alarm_s, _ = played(extremes)
+    # the third turn, found once the error is back a third of 50 N from 289 N
+    assert alarm_s is not None and 6.52 < alarm_s < 6.52 + 0.2
+    # An entry's two small swings of noise (65 and 81 N, seed 23's #32) are no kick: the third
+    # swing, however large, is the third of a count, and the fourth raises the alarm
+    extremes = [(0.0, -105.0), (0.29, -40.0), (0.38, -121.0), (0.70, 831.0), (1.12, -506.0),
+                (1.31, 367.0), (2.0, 0.0)]
+    assert KICK_RISE_SHARE * 500.0 > 81.0
+    alarm_s, _ = played(extremes)
+    assert alarm_s is not None and alarm_s > 1.12
+
+
+def test_a_stable_loop_s_small_overshoot_after_a_kick_is_no_cycle():
+    # Population seed 15's #130 (commissioned, dead time +30 ms, in band: 1.8 N steady): a 3.5
+    # mm step's rise of 929 N out of the noise (a turn 0.25 s before: no calm spell) and its
+    # return of 908 N to 13 N over the reference, then an overshoot of 57 N and its return of
+    # 79 N as the settling mean went under it. The third swing after a kick counts whatever
+    # its size, the fourth is larger than it and keeps the return's pace: alarmed at 7.72 s.
+    # The loop does not ring on after the step: its third swing is 0.06 of the return. Cycles
+    # a step set off had thirds of 0.15 (seed 23's #47: 117 N after a return of 793 N) to 0.57
+    # of it.
+    extremes = [(0.0, 0.0), (5.27, 10.0), (6.01, -7.5), (6.26, 921.0), (6.69, 13.0),
+                (6.91, 70.0), (7.72, -9.0), (8.5, 0.0)]
+    assert 57.0 / 908.0 < KICK_RING < 117.0 / 793.0
     alarm_s, _ = played(extremes)
     assert alarm_s is None
 

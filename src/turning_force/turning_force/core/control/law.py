@@ -121,9 +121,12 @@ CS_O_TOP, CS_O_AGE = 36, 37
 # the error where it last got on by the hysteresis, when (the time since the turn), and its
 # longest stall so far.
 CS_O_HALF_LAST, CS_O_HALF_BEFORE, CS_O_MARK, CS_O_MARK_AT, CS_O_STALL = range(38, 43)
-# 1 where the detector's count began at a kick's rise out of a calm spell (.update.ONSET_RING).
-CS_O_ONSET = 43
-CS_DRIFT = 44   # the drift monitor's state (.drift), drift.STATE values
+# 1 where the detector's count began at a kick's rise out of a calm spell (.update.ONSET_RING);
+# 1 from a period out of the cut or with the loop open until the detector watches again, and
+# the extreme the force reached meanwhile, where the swing under way ends at a later turn
+# (NaN: none) (.update._reopen).
+CS_O_ONSET, CS_O_REOPEN, CS_O_FLOOR = 43, 44, 45
+CS_DRIFT = 46   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.

@@ -73,6 +73,7 @@ from turning_force.core.control.law import (
     CS_O_FF_PHASE,
     CS_O_FF_SHARE,
     CS_O_FF_TIME,
+    CS_O_FLOOR,
     CS_O_GREW,
     CS_O_HALF,
     CS_O_HALF_BEFORE,
@@ -87,6 +88,7 @@ from turning_force.core.control.law import (
     CS_O_ONSET,
     CS_O_OPEN,
     CS_O_PAIRED,
+    CS_O_REOPEN,
     CS_O_SINCE,
     CS_O_STALL,
     CS_O_SWING,
@@ -180,7 +182,28 @@ OSC_REGULAR, OSC_CALM = 2.5, 0.5
 # went down under it: counted as the fourth, alarmed at 6.65 s, 10.42 N steady with the
 # reaction against 1.75 N without). The cycle seed 23's #22 set off had its third swing 0.57
 # of the return; a linear loop's transient, 0.15 (above).
-ONSET_RING = 0.3
+# After any kick the third swing is KICK_RING of the return at least: a stable loop's small
+# overshoot after a step is no ring (population seed 15's #130, commissioned, in band, 1.8 N
+# steady: a 3.5 mm step's rise of 929 N a quarter second after a noise turn, no calm spell,
+# its return of 908 N, then 57 N, 0.06 of it, and a fourth of 79 N as the settling mean went
+# under it: alarmed at 7.72 s), while a cycle a step set off grew from 0.15 of the return
+# (seed 23's #47: 117 N after 793 N). Held to ONSET_RING there instead (stop 33), three deep
+# jobs whose cycles ring at under 0.3 of the return were alarmed 0.2-0.4 s late.
+ONSET_RING, KICK_RING = 0.3, 0.1
+# After a kick, a loop that comes back and then swings out further from the reference than it
+# came back, by KICK_GROWTH and by KICK_GROWTH_SHARE of the reference at least, cycles: a stable
+# loop's transient after a step shrinks from extreme to extreme (a linear loop's by the same
+# ratio each half-period), while a relay-like cycle that a step sets off rises at 150 % far
+# faster than it falls at 0 % and overshoots the reference by several times what it undershot.
+# Its fourth swing came one slow fall later: on bench_loop_watch's seed 11 #5 (dead time 126
+# ms, a x3.5 step at 5 s) the return undershot by 58 N, the next swing overshot by 289 N at
+# 6.52 s, and the fourth turn was at 7.42 s, 2.4 s after the step (seed 61's #19: 95 N under,
+# then 412 N over, alarmed at 7.41 s). The third swing alarms there, where the kick's rise was
+# KICK_RISE_SHARE of the reference at least (a depth step's or an entry's): two small swings
+# of an entry's noise (65 and 81 N on seed 23's #32) are no kick, and the reaction, started on
+# their half-periods, left that run 289 N over the ripple bound (25 N with the alarm 0.3 s
+# later, at the fourth swing).
+KICK_GROWTH, KICK_GROWTH_SHARE, KICK_RISE_SHARE = 2.0, 0.2, 0.5
 # Under the reaction the detector asks whether the reaction's own loop cycles: a swing counts
 # only REACTION_HALF_RATIO times the alarmed cycle's half-period at most (a PI law that
 # cycles does so where the process's phase is between -90 and -180 degrees: above w_u / 4 on
@@ -434,13 +457,18 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
             half <= REACTION_REGULAR * counted and counted <= REACTION_REGULAR * half)
     kicked = cs[CS_O_COUNT] == 2.0 and cs[CS_O_ALARM] == 0.0 and (
         cs[CS_O_GREW] != 0.0 or last >= OSC_DECAY * before)
-    rings = cs[CS_O_ONSET] == 0.0 or swing >= ONSET_RING * last
+    rings = swing >= (KICK_RING if cs[CS_O_ONSET] == 0.0 else ONSET_RING) * last
     lasting = (kicked and rings) or swing >= OSC_DECAY * last or (
         cs[CS_O_PAIRED] != 0.0 and swing + last >= OSC_DECAY * (last + before))
     cs[CS_O_GREW] = 1.0 if swing >= last else 0.0
     cs[CS_O_PAIRED] = 0.0 if kicked else 1.0
     if counts and cs[CS_O_COUNT] > 0.0 and lasting and chains:
         cs[CS_O_COUNT] += 1.0
+        if kicked and before >= KICK_RISE_SHARE * cp[C_REF] and abs(extreme) >= pymax(
+                KICK_GROWTH * abs(cs[CS_O_LAST]), KICK_GROWTH_SHARE * cp[C_REF]):
+            # the loop came back from the kick and swung out further than it came back:
+            # no transient of a stable loop grows so (GROWTH's text)
+            cs[CS_O_COUNT] = pymax(cs[CS_O_COUNT], cp[C_OSC_COUNT])
         # after an untimed first swing (none summed) this one's half-period twice
         cs[CS_O_HALVES] += half * (2.0 if cs[CS_O_HALVES] == 0.0 else 1.0)
     else:
@@ -493,7 +521,31 @@ def _alarm(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
 
 
 @compiled
-def _watch(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
+def _reopen(cs: np.ndarray, error: float, rate: float) -> None:
+    """The first period watched after a spell out of the cut or with the loop open (the gate
+    held a level of its own: the air-cut feed, the entry feed, the dial; :func:`_out_of_cut`
+    followed the swing's extreme meanwhile, turning nothing). Where the force now runs the way
+    the swing went (``rate``, the estimate's rate), the gate's level moved it on its own in
+    the spell, and the loop's swing ends where the force turns from now on: the extreme of the
+    spell is kept (CS_O_FLOOR) and the turn found later measures the swing to the further of
+    the two. A limit cycle whose troughs carry the force under the gate's exit threshold
+    leaves the cut at each of them; at the next entry the force overshoots on the entry feed
+    and falls back as the loop takes over. With the trough in air as the extreme, that fall
+    turned the error 0.02 s after the loop closed, too fast to count, and with the last value
+    in the cut as the extreme the swing was a fraction of the cycle's (its trough in air):
+    either way the count started afresh at every cycle (bench_loop_watch: seed 3's #44,
+    1,019 N peak to peak, alarmed 3.8 s after the onset; seed 202's #52, 1,582 N, 2.3 s).
+    Where the force runs against the swing, the extreme of the spell is the swing's turn, found
+    at once."""
+    cs[CS_O_REOPEN] = 0.0
+    if (cs[CS_O_DIR] > 0.0 and rate > 0.0) or (cs[CS_O_DIR] < 0.0 and rate < 0.0):
+        cs[CS_O_FLOOR] = cs[CS_O_EXT]
+        cs[CS_O_EXT] = error
+        cs[CS_O_MARK], cs[CS_O_MARK_AT] = error, cs[CS_O_SINCE]
+
+
+@compiled
+def _watch(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> None:
     """The oscillation detector, one period of the force error in the cut.
 
     A limit cycle is a swing of the error that keeps coming back. From one turning point of
@@ -510,8 +562,10 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
         cs[CS_O_HSUM], cs[CS_O_CSUM], cs[CS_O_CTIME] = 0.0, 0.0, 0.0
         cs[CS_O_HALF_LAST], cs[CS_O_HALF_BEFORE] = 0.0, 0.0
         cs[CS_O_MARK], cs[CS_O_MARK_AT], cs[CS_O_STALL] = error, 0.0, 0.0
-        cs[CS_O_ONSET] = 0.0
+        cs[CS_O_ONSET], cs[CS_O_REOPEN], cs[CS_O_FLOOR] = 0.0, 0.0, math.nan
         return
+    if cs[CS_O_REOPEN] != 0.0:
+        _reopen(cs, error, rate)
     h = OSC_HYSTERESIS * cp[C_OSC_SWING]
     cs[CS_O_AGE] += cp[C_PERIOD]
     rising = cs[CS_O_DIR] > 0.0
@@ -522,7 +576,12 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
             cs[CS_O_STALL] = pymax(cs[CS_O_STALL], cs[CS_O_SINCE] - cs[CS_O_MARK_AT])
             cs[CS_O_MARK], cs[CS_O_MARK_AT] = error, cs[CS_O_SINCE]
     elif (rising and error < cs[CS_O_EXT] - h) or (not rising and error > cs[CS_O_EXT] + h):
-        _turn(cp, cs, cs[CS_O_EXT])
+        extreme = cs[CS_O_EXT]
+        if math.isfinite(cs[CS_O_FLOOR]):   # the spell's extreme, where further (_reopen)
+            extreme = pymax(extreme, cs[CS_O_FLOOR]) if rising else pymin(extreme,
+                                                                           cs[CS_O_FLOOR])
+            cs[CS_O_FLOOR] = math.nan
+        _turn(cp, cs, extreme)
         cs[CS_O_EXT], cs[CS_O_DIR] = error, -cs[CS_O_DIR]
         cs[CS_O_MARK], cs[CS_O_MARK_AT], cs[CS_O_STALL] = error, 0.0, 0.0
     if cs[CS_O_COUNT] >= cp[C_OSC_COUNT]:
@@ -667,7 +726,7 @@ def _react(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> float:
 
 
 @compiled
-def _out_of_cut(cp: np.ndarray, cs: np.ndarray) -> None:
+def _out_of_cut(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
     """A period out of the cut, or with the loop open (the PMC holds a level of its own). The
     detector pauses: a cycle whose troughs carry the force under the gate's exit threshold
     (``exit_force_n``) leaves the cut at each of them, and the swing goes on from where the
@@ -678,6 +737,11 @@ def _out_of_cut(cp: np.ndarray, cs: np.ndarray) -> None:
     it again would cost another ``oscillation_swings`` swings."""
     cs[CS_O_SINCE] += cp[C_PERIOD]
     cs[CS_O_MARK_AT] += cp[C_PERIOD]   # no stall of the error in the cut
+    cs[CS_O_REOPEN] = 1.0
+    # the swing's extreme goes on (_reopen): in air the force is the estimator's zero
+    if (cs[CS_O_DIR] > 0.0 and error > cs[CS_O_EXT]) or (cs[CS_O_DIR] < 0.0
+                                                          and error < cs[CS_O_EXT]):
+        cs[CS_O_EXT] = error
     if cs[CS_O_SINCE] > OSC_HALF_MAX_S:
         cs[CS_O_DIR], cs[CS_O_COUNT] = 0.0, 0.0
 
@@ -720,10 +784,10 @@ def controller_update(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, force:
         _recover(cp, cs, error, out)
         return
     if cs[CS_ENGAGED] != 0.0 and cs[CS_O_OPEN] == 0.0:
-        _watch(cp, cs, error)
+        _watch(cp, cs, error, rate)
         out[OUT_OSC] = cs[CS_O_ALARM]
     else:
-        _out_of_cut(cp, cs)
+        _out_of_cut(cp, cs, error)
     kind = int(cp[C_KIND])
     reacting = cs[CS_O_ALARM] != 0.0 and int(cp[C_OSC_REACTION]) != NO_REACTION
     if reacting:
