@@ -158,7 +158,11 @@ OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.07, 2.0
 # growing, whatever its pace (an entry's cycle on seed 23's #32: 0.09 s, then 0.32 and 0.42 s,
 # swings of 81 N, then 953 and 1,315 N). Within 2 the cycles of the generated population's
 # seeds 15, 7 and 23 (166 oscillating runs) all keep their pace; within 1.7 two of them lose
-# it (a cycle growing on a step's settling mean).
+# it (a cycle growing on a step's settling mean). A swing that held a spell out of the cut or
+# on the gate's own level (_reopen) took the gate's time, not the loop's, and no pace is asked
+# of it: a cycle through the air-cut and entry feeds on bench_loop_watch seed 202's #52 took
+# 0.68 s for a swing that held the entry feed against 0.24 s for the last of its direction,
+# and was alarmed 2.2 s after its onset (0.6 s now).
 # A swing out of a calm spell is the program's, a depth step's jump, not the loop's: one that
 # took longer than OSC_HALF_MAX_S from the turn before, or whose error stalled in the cut (got
 # on by less than the hysteresis, before it last did) for more than OSC_CALM of its
@@ -443,8 +447,11 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     counts = large and half >= OSC_HALF_MIN_S and not calm
     onset = large and watching and calm   # a kick's rise, untimed
     chains = True
-    if watching and cs[CS_O_COUNT] >= 3.0 and swing < before:
-        # a cycle's pace: within OSC_REGULAR of the swing of the same direction
+    spelled = cs[CS_O_REOPEN] == 2.0
+    cs[CS_O_REOPEN] = 0.0
+    if watching and cs[CS_O_COUNT] >= 3.0 and swing < before and not spelled:
+        # a cycle's pace: within OSC_REGULAR of the swing of the same direction (a swing
+        # that held a spell out of the cut or on the gate's level took the gate's time)
         paced = cs[CS_O_HALF_BEFORE]
         chains = half <= OSC_REGULAR * paced and paced <= OSC_REGULAR * half
     elif cs[CS_O_ALARM] != 0.0 and cs[CS_O_COUNT] > 0.0:
@@ -537,7 +544,7 @@ def _reopen(cs: np.ndarray, error: float, rate: float) -> None:
     1,019 N peak to peak, alarmed 3.8 s after the onset; seed 202's #52, 1,582 N, 2.3 s).
     Where the force runs against the swing, the extreme of the spell is the swing's turn, found
     at once."""
-    cs[CS_O_REOPEN] = 0.0
+    cs[CS_O_REOPEN] = 2.0   # the swing under way held a spell (_turn: no pace asked of it)
     if (cs[CS_O_DIR] > 0.0 and rate > 0.0) or (cs[CS_O_DIR] < 0.0 and rate < 0.0):
         cs[CS_O_FLOOR] = cs[CS_O_EXT]
         cs[CS_O_EXT] = error
@@ -564,7 +571,7 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> None:
         cs[CS_O_MARK], cs[CS_O_MARK_AT], cs[CS_O_STALL] = error, 0.0, 0.0
         cs[CS_O_ONSET], cs[CS_O_REOPEN], cs[CS_O_FLOOR] = 0.0, 0.0, math.nan
         return
-    if cs[CS_O_REOPEN] != 0.0:
+    if cs[CS_O_REOPEN] == 1.0:
         _reopen(cs, error, rate)
     h = OSC_HYSTERESIS * cp[C_OSC_SWING]
     cs[CS_O_AGE] += cp[C_PERIOD]
