@@ -30,10 +30,7 @@ from turning_force.core.control.update import (
     DETUNE_P,
     DETUNE_RATIO,
     FASTEST_RATIO,
-    KICK_GROWTH,
-    KICK_GROWTH_SHARE,
     KICK_RING,
-    KICK_RISE_SHARE,
     ONSET_RING,
     OSC_CALM,
     OSC_DECAY,
@@ -279,16 +276,13 @@ def test_the_reaction_holds_across_an_interrupted_cut():
     # second, the swing that held the entry feed took 2.8 times the one before of its
     # direction, the gate's time, and failed the cycle's pace
     (3, 44), (202, 52),
-    # a x3.5 step's return, then a swing out 5 times as far: alarmed at the fourth swing,
-    # 2.4 s after the onset
-    (11, 5),
 ], ids=['trough out of the cut', 'interrupted, trough out of the cut', 'deep step',
         'steps', 'long job, 141 ms', 'long job, 130 ms', 'slowest, 144 ms',
         'slowest, 128 ms', 'kick larger than the cycle',
         'drifting mean', 'long job, g 0.61', 'long job, g 0.78', 'long job, g 0.93',
         'kick with a smaller return', 'slow return under the reaction', 'long job, quickened',
         'cycle out of a calm spell', 'cycle through the entry feed',
-        'entry feed, paced by the gate', 'growing after a kick'])
+        'entry feed, paced by the gate'])
 def test_generated_machines_are_alarmed_in_time_and_calmed(seed, index):
     # Machines of the generated population (commands/population.py) of the classes the
     # detector once missed or the reaction once left cycling, judged as the issue does: the
@@ -495,30 +489,6 @@ def test_a_cycle_through_the_gate_s_air_and_entry_feed_is_alarmed_within_2_s():
     # 0.7 s and trough to peak 0.3 s, the first (untimed) taken as long as the second:
     # (0.7 + 0.7 + 0.3 + 0.7) / 4 = 0.6 s, each turn read a control period late at most
     assert abs(state[CS_O_HALF] - 0.6) <= 0.01
-
-
-def test_a_kick_s_third_swing_that_grows_past_the_return_raises_the_alarm():
-    # bench_loop_watch seed 11's #5 (dead time 126 ms, an uncommissioned SMC): a x3.5 depth
-    # step at 5 s out of the noise (turns of 20 N, no calm spell), the force 1,260 N over the
-    # reference, back to 58 N under it in 1.1 s, then 289 N over it in 0.22 s: a relay-like
-    # cycle that rises at 150 % far faster than it falls at 0 %. Its fourth swing came at
-    # 7.42 s, 2.4 s after the step. No stable loop's transient swings out further than it
-    # came back: the third swing alarms.
-    noise = [(0.1 * k, 10.0 * (-1.0) ** k) for k in range(50)]
-    extremes = [*noise, (5.18, 1260.0), (6.30, -58.0), (6.52, 289.0), (7.42, -60.0),
-                (7.64, 265.0), (8.5, 0.0)]
-    assert KICK_RISE_SHARE * 500.0 <= 1260.0 + 10.0
-    assert max(KICK_GROWTH * 58.0, KICK_GROWTH_SHARE * 500.0) <= 289.0
-    alarm_s, _ = played(extremes)
-    # the third turn, found once the error is back a third of 50 N from 289 N
-    assert alarm_s is not None and 6.52 < alarm_s < 6.52 + 0.2
-    # An entry's two small swings of noise (65 and 81 N, seed 23's #32) are no kick: the third
-    # swing, however large, is the third of a count, and the fourth raises the alarm
-    extremes = [(0.0, -105.0), (0.29, -40.0), (0.38, -121.0), (0.70, 831.0), (1.12, -506.0),
-                (1.31, 367.0), (2.0, 0.0)]
-    assert KICK_RISE_SHARE * 500.0 > 81.0
-    alarm_s, _ = played(extremes)
-    assert alarm_s is not None and alarm_s > 1.12
 
 
 def test_a_stable_loop_s_small_overshoot_after_a_kick_is_no_cycle():

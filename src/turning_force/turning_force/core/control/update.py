@@ -194,20 +194,6 @@ OSC_REGULAR, OSC_CALM = 2.5, 0.5
 # (seed 23's #47: 117 N after 793 N). Held to ONSET_RING there instead (stop 33), three deep
 # jobs whose cycles ring at under 0.3 of the return were alarmed 0.2-0.4 s late.
 ONSET_RING, KICK_RING = 0.3, 0.1
-# After a kick, a loop that comes back and then swings out further from the reference than it
-# came back, by KICK_GROWTH and by KICK_GROWTH_SHARE of the reference at least, cycles: a stable
-# loop's transient after a step shrinks from extreme to extreme (a linear loop's by the same
-# ratio each half-period), while a relay-like cycle that a step sets off rises at 150 % far
-# faster than it falls at 0 % and overshoots the reference by several times what it undershot.
-# Its fourth swing came one slow fall later: on bench_loop_watch's seed 11 #5 (dead time 126
-# ms, a x3.5 step at 5 s) the return undershot by 58 N, the next swing overshot by 289 N at
-# 6.52 s, and the fourth turn was at 7.42 s, 2.4 s after the step (seed 61's #19: 95 N under,
-# then 412 N over, alarmed at 7.41 s). The third swing alarms there, where the kick's rise was
-# KICK_RISE_SHARE of the reference at least (a depth step's or an entry's): two small swings
-# of an entry's noise (65 and 81 N on seed 23's #32) are no kick, and the reaction, started on
-# their half-periods, left that run 289 N over the ripple bound (25 N with the alarm 0.3 s
-# later, at the fourth swing).
-KICK_GROWTH, KICK_GROWTH_SHARE, KICK_RISE_SHARE = 2.0, 0.2, 0.5
 # Under the reaction the detector asks whether the reaction's own loop cycles: a swing counts
 # only REACTION_HALF_RATIO times the alarmed cycle's half-period at most (a PI law that
 # cycles does so where the process's phase is between -90 and -180 degrees: above w_u / 4 on
@@ -429,8 +415,8 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     """The error turned at ``extreme``: the swing from the turn before counts toward the
     alarm if it is large, took OSC_HALF_MIN_S to OSC_HALF_MAX_S, and the cycle does not die
     away: the last two swings together (a period's peak to peak) at least OSC_DECAY of the two
-    before; the third after a kick whatever its size against the kick's (after a kick's rise
-    out of a calm spell at least ONSET_RING of its return), the fourth at least
+    before; the third after a kick at least KICK_RING of the kick's return (after a kick's
+    rise out of a calm spell ONSET_RING of it), the fourth at least
     OSC_DECAY of the third; from the fourth on, each no larger than the one two before within
     OSC_REGULAR of its half-period. Otherwise the count starts afresh, at the swing itself where
     it counts, or where it is large and came out of a calm spell (OSC_CALM: a kick's rise).
@@ -471,11 +457,6 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     cs[CS_O_PAIRED] = 0.0 if kicked else 1.0
     if counts and cs[CS_O_COUNT] > 0.0 and lasting and chains:
         cs[CS_O_COUNT] += 1.0
-        if kicked and before >= KICK_RISE_SHARE * cp[C_REF] and abs(extreme) >= pymax(
-                KICK_GROWTH * abs(cs[CS_O_LAST]), KICK_GROWTH_SHARE * cp[C_REF]):
-            # the loop came back from the kick and swung out further than it came back:
-            # no transient of a stable loop grows so (GROWTH's text)
-            cs[CS_O_COUNT] = pymax(cs[CS_O_COUNT], cp[C_OSC_COUNT])
         # after an untimed first swing (none summed) this one's half-period twice
         cs[CS_O_HALVES] += half * (2.0 if cs[CS_O_HALVES] == 0.0 else 1.0)
     else:
