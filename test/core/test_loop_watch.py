@@ -35,6 +35,7 @@ from turning_force.core.control.update import (
     OSC_CALM,
     OSC_DECAY,
     OSC_HALF_MAX_S,
+    OSC_HALF_MIN_S,
     OSC_REGULAR,
     RECYCLE_RATIO,
     RISE_HALVES,
@@ -489,6 +490,28 @@ def test_a_cycle_through_the_gate_s_air_and_entry_feed_is_alarmed_within_2_s():
     # 0.7 s and trough to peak 0.3 s, the first (untimed) taken as long as the second:
     # (0.7 + 0.7 + 0.3 + 0.7) / 4 = 0.6 s, each turn read a control period late at most
     assert abs(state[CS_O_HALF] - 0.6) <= 0.01
+
+
+def test_a_cycle_whose_troughs_the_noise_wiggles_is_alarmed_within_2_s():
+    # bench_loop_watch seed 101's #41 (a noisy drive, 0.09 A + 4.9 %): after a x3.5 step, a
+    # cycle of 200-255 N swings, 0.14-0.37 s apart, the error at its troughs turning up 17 N
+    # and down 20 N again within 0.03 s each. Each of those turns was a swing of its own,
+    # under the swing threshold and faster than a cycle's: the count started afresh at every
+    # trough, and the alarm came 2.05 s after the onset. A swing that small and that fast is the
+    # noise's at the extreme: the swing before it goes on to the further of its two turns.
+    extremes = [(0.0, 0.0), (0.5, 0.0)]
+    for k in range(8):
+        t = 0.75 + 0.5 * k
+        extremes += [(t, 120.0), (t + 0.25, -72.0), (t + 0.28, -50.0), (t + 0.31, -78.0)]
+    extremes.append((5.0, 0.0))
+    assert 78.0 - 50.0 < 50.0 and OSC_HALF_MIN_S > 0.03   # the wiggle: small and fast
+    alarm_s, state = played(extremes)
+    # the fourth swing from the first peak: the second trough's turn, found once the error is
+    # back a third of 50 N from -78 N (about 0.05 s on a half cosine of 198 N over 0.19 s)
+    assert alarm_s is not None and alarm_s <= 0.75 + 0.5 + 0.31 + 0.1
+    # the half-periods counted: peak to trough 0.25 s and back 0.25 s, each read from the
+    # turns before the wiggle, a control period late at most
+    assert abs(state[CS_O_HALF] - 0.25) <= 0.02
 
 
 def test_a_stable_loop_s_small_overshoot_after_a_kick_is_no_cycle():

@@ -126,7 +126,9 @@ CS_O_HALF_LAST, CS_O_HALF_BEFORE, CS_O_MARK, CS_O_MARK_AT, CS_O_STALL = range(38
 # the extreme the force reached meanwhile, where the swing under way ends at a later turn
 # (NaN: none) (.update._reopen).
 CS_O_ONSET, CS_O_REOPEN, CS_O_FLOOR = 43, 44, 45
-CS_DRIFT = 46   # the drift monitor's state (.drift), drift.STATE values
+# 1 after a turn the detector took for the noise's (.update.OSC_WIGGLE), until the next.
+CS_O_WIGGLE = 46
+CS_DRIFT = 47   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.

@@ -97,6 +97,7 @@ from turning_force.core.control.law import (
     CS_O_TAIL_SIGN,
     CS_O_TOP,
     CS_O_WAIT,
+    CS_O_WIGGLE,
     CS_PIN_ERROR,
     CS_PINNED,
     CS_RESETS,
@@ -143,7 +144,11 @@ REACH_MEAN_S = 0.3
 # while the kick had to be a return larger than its rise), and the fourth is held to DECAY of
 # the third. A linear loop's transient swings shrink by the same ratio from the third on (that
 # step's third was 0.15 of its return), so the fourth swing still tells a transient from a
-# cycle.
+# cycle. A swing under the alarm's swing and faster than OSC_HALF_MIN_S is a wiggle of the
+# noise at an extreme, no swing at all: the swing before it goes on to the further of the
+# wiggle's two turns, and its turn, count and half-period stand (a noisy drive's cycle of
+# 200-255 N, its troughs wiggling by 17-20 N within 0.03 s, started its count afresh at every
+# trough: bench_loop_watch seed 101's #41, alarmed 2.05 s after the onset; 1.68 s now).
 OSC_HYSTERESIS, OSC_DECAY = 1.0 / 3.0, 0.7
 OSC_HALF_MIN_S, OSC_HALF_MAX_S = 0.07, 2.0
 # A limit cycle keeps its pace: from the fourth swing of a count on, a swing no larger than the
@@ -425,6 +430,17 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     took REACTION_HALF_RATIO times the alarmed cycle's half-period at most, or where it took
     within REACTION_REGULAR of their mean (a slower cycle of the reaction's own)."""
     swing, half = abs(extreme - cs[CS_O_LAST]), cs[CS_O_SINCE]
+    if cs[CS_O_WIGGLE] != 0.0:
+        # the turn after the noise's: the swing before the wiggle ends here where further
+        cs[CS_O_WIGGLE] = 0.0
+        falling = cs[CS_O_DIR] < 0.0
+        cs[CS_O_LAST] = pymin(cs[CS_O_LAST], extreme) if falling else pymax(cs[CS_O_LAST],
+                                                                            extreme)
+        return
+    if swing < cp[C_OSC_SWING] and half < OSC_HALF_MIN_S:
+        # a wiggle of the noise at the swing's extreme: the swing and its turn stand
+        cs[CS_O_WIGGLE] = 1.0
+        return
     last, before = cs[CS_O_SWING], cs[CS_O_SWING_BEFORE]
     watching = cs[CS_O_ALARM] == 0.0
     large = swing >= cp[C_OSC_SWING] and (
@@ -551,6 +567,7 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> None:
         cs[CS_O_HALF_LAST], cs[CS_O_HALF_BEFORE] = 0.0, 0.0
         cs[CS_O_MARK], cs[CS_O_MARK_AT], cs[CS_O_STALL] = error, 0.0, 0.0
         cs[CS_O_ONSET], cs[CS_O_REOPEN], cs[CS_O_FLOOR] = 0.0, 0.0, math.nan
+        cs[CS_O_WIGGLE] = 0.0
         return
     if cs[CS_O_REOPEN] == 1.0:
         _reopen(cs, error, rate)
@@ -571,7 +588,7 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> None:
             cs[CS_O_FLOOR] = math.nan
         _turn(cp, cs, extreme)
         cs[CS_O_EXT], cs[CS_O_DIR] = error, -cs[CS_O_DIR]
-        cs[CS_O_MARK], cs[CS_O_MARK_AT], cs[CS_O_STALL] = error, 0.0, 0.0
+        cs[CS_O_MARK], cs[CS_O_MARK_AT], cs[CS_O_STALL] = error, cs[CS_O_SINCE], 0.0
     if cs[CS_O_COUNT] >= cp[C_OSC_COUNT]:
         if cs[CS_O_ALARM] == 0.0:
             _alarm(cp, cs, error)
