@@ -122,11 +122,11 @@ CS_O_TOP, CS_O_AGE = 36, 37
 # longest stall so far.
 CS_O_HALF_LAST, CS_O_HALF_BEFORE, CS_O_MARK, CS_O_MARK_AT, CS_O_STALL = range(38, 43)
 # 1 where the detector's count began at a kick's rise out of a calm spell (.update.ONSET_RING);
-# 1 from a period out of the cut or with the loop open until the detector watches again, and
-# the extreme the force reached meanwhile, where the swing under way ends at a later turn
-# (NaN: none) (.update._reopen).
+# the swing under way and the spells out of the cut or with the loop open (1 in one, 2 once the
+# detector watches again, 0 none since the last turn), and the extreme the force reached in
+# the last, where the swing ends at a later turn (NaN: none) (.update._reopen).
 CS_O_ONSET, CS_O_REOPEN, CS_O_FLOOR = 43, 44, 45
-# 1 after a turn the detector took for the noise's (.update.OSC_WIGGLE), until the next.
+# 1 after a turn the detector took for a wiggle of the noise (.update._turn), until the next.
 CS_O_WIGGLE = 46
 CS_DRIFT = 47   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE

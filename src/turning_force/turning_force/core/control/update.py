@@ -538,7 +538,7 @@ def _reopen(cs: np.ndarray, error: float, rate: float) -> None:
     turned the error 0.02 s after the loop closed, too fast to count, and with the last value
     in the cut as the extreme the swing was a fraction of the cycle's (its trough in air):
     either way the count started afresh at every cycle (bench_loop_watch: seed 3's #44,
-    1,019 N peak to peak, alarmed 3.8 s after the onset; seed 202's #52, 1,582 N, 2.3 s).
+    1,019 N peak to peak, alarmed 3.8 s after the onset; seed 202's #52, 1,582 N, 2.2 s).
     Where the force runs against the swing, the extreme of the spell is the swing's turn, found
     at once."""
     cs[CS_O_REOPEN] = 2.0   # the swing under way held a spell (_turn: no pace asked of it)
