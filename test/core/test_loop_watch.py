@@ -518,11 +518,11 @@ def test_a_stable_loop_s_small_overshoot_after_a_kick_is_no_cycle():
     # Population seed 15's #130 (commissioned, dead time +30 ms, in band: 1.8 N steady): a 3.5
     # mm step's rise of 929 N out of the noise (a turn 0.25 s before: no calm spell) and its
     # return of 908 N to 13 N over the reference, then an overshoot of 57 N and its return of
-    # 79 N as the settling mean went under it. The third swing after a kick counts whatever
-    # its size, the fourth is larger than it and keeps the return's pace: alarmed at 7.72 s.
-    # The loop does not ring on after the step: its third swing is 0.06 of the return. Cycles
-    # a step set off had thirds of 0.15 (seed 23's #47: 117 N after a return of 793 N) to 0.57
-    # of it.
+    # 79 N as the settling mean went under it. With the third swing after a kick counted
+    # whatever its size, the fourth was larger than it and kept the return's pace: alarmed at
+    # 7.72 s. The loop does not ring on after the step: its third swing is 0.06 of the return.
+    # Cycles a step set off had thirds of 0.15 (seed 23's #47: 117 N after a return of 793 N)
+    # to 0.57 of it.
     extremes = [(0.0, 0.0), (5.27, 10.0), (6.01, -7.5), (6.26, 921.0), (6.69, 13.0),
                 (6.91, 70.0), (7.72, -9.0), (8.5, 0.0)]
     assert 57.0 / 908.0 < KICK_RING < 117.0 / 793.0
