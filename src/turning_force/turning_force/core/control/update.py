@@ -416,6 +416,15 @@ def _recover(cp: np.ndarray, cs: np.ndarray, error: float, out: np.ndarray) -> N
 
 
 @compiled
+def _further(direction: float, a: float, b: float) -> float:
+    """Of ``a`` and ``b``, the one further the way the detector watches the error go
+    (``direction``: 1 rising, -1 falling; 0, none watched: ``a``)."""
+    if direction > 0.0:
+        return pymax(a, b)
+    return pymin(a, b) if direction < 0.0 else a
+
+
+@compiled
 def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     """The error turned at ``extreme``: the swing from the turn before counts toward the
     alarm if it is large, took OSC_HALF_MIN_S to OSC_HALF_MAX_S, and the cycle does not die
@@ -433,9 +442,7 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     if cs[CS_O_WIGGLE] != 0.0:
         # the turn after the noise's: the swing before the wiggle ends here where further
         cs[CS_O_WIGGLE] = 0.0
-        falling = cs[CS_O_DIR] < 0.0
-        cs[CS_O_LAST] = pymin(cs[CS_O_LAST], extreme) if falling else pymax(cs[CS_O_LAST],
-                                                                            extreme)
+        cs[CS_O_LAST] = _further(cs[CS_O_DIR], cs[CS_O_LAST], extreme)
         return
     if swing < cp[C_OSC_SWING] and half < OSC_HALF_MIN_S:
         # a wiggle of the noise at the swing's extreme: the swing and its turn stand
@@ -583,8 +590,7 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> None:
     elif (rising and error < cs[CS_O_EXT] - h) or (not rising and error > cs[CS_O_EXT] + h):
         extreme = cs[CS_O_EXT]
         if math.isfinite(cs[CS_O_FLOOR]):   # the spell's extreme, where further (_reopen)
-            extreme = pymax(extreme, cs[CS_O_FLOOR]) if rising else pymin(extreme,
-                                                                           cs[CS_O_FLOOR])
+            extreme = _further(cs[CS_O_DIR], extreme, cs[CS_O_FLOOR])
             cs[CS_O_FLOOR] = math.nan
         _turn(cp, cs, extreme)
         cs[CS_O_EXT], cs[CS_O_DIR] = error, -cs[CS_O_DIR]
@@ -744,9 +750,7 @@ def _out_of_cut(cp: np.ndarray, cs: np.ndarray, error: float) -> None:
     cs[CS_O_MARK_AT] += cp[C_PERIOD]   # no stall of the error in the cut
     cs[CS_O_REOPEN] = 1.0
     # the swing's extreme goes on (_reopen): in air the force is the estimator's zero
-    if (cs[CS_O_DIR] > 0.0 and error > cs[CS_O_EXT]) or (cs[CS_O_DIR] < 0.0
-                                                          and error < cs[CS_O_EXT]):
-        cs[CS_O_EXT] = error
+    cs[CS_O_EXT] = _further(cs[CS_O_DIR], cs[CS_O_EXT], error)
     if cs[CS_O_SINCE] > OSC_HALF_MAX_S:
         cs[CS_O_DIR], cs[CS_O_COUNT] = 0.0, 0.0
 
