@@ -386,6 +386,39 @@ def test_a_feed_ringing_through_standstill_in_air_leaves_the_friction_alone():
     np.testing.assert_allclose(scales, 1.0, atol=0.02)
 
 
+@pytest.mark.parametrize('seed', [1, 2, 3, 4, 5])
+def test_the_estimates_swing_at_a_standstill_in_air_is_no_contact(seed):
+    # The air staircase measures the friction from its slowest level (10.5 mm/min at a faster
+    # spindle: population seed 15 #99), and the estimator ramps it to zero below that while
+    # the lathe's own curve reaches 0.6 A at 6 mm/min. An underdamped servo (18 rad/s, damped
+    # at 0.5) told 20 % after 150 % as the tool leaves rings down through the standstill; there
+    # the model is some 0.3 A off the friction, and the estimate swings to 41-45 N (measured
+    # here), over rezero_below_n. Taken for a contact it restarted the count of air, and the
+    # re-zero then took off the tail of a cut left 0.3 s before, not 1 s: 4 N of it, read as
+    # friction 3-5 % low, and the next cut's estimate 3-4.5 N high (#99 drifted: 5 N steady).
+    # At a standstill no chip is cut: the count of air holds. The scale is then the friction
+    # to the readings' noise (1.5 %, as the tail's test above), the next cut's estimate
+    # within 1 N of the force (0.5 N at most measured).
+    tau_c = 0.125
+    plant = PlantSettings(depth_times_s=(0.0, 2.0, 3.0), depth_mm=(2.0, 0.0, 2.0),
+                          cutting_time_constant_s=tau_c, servo_model='second_order',
+                          servo_natural_freq_rad_s=18.0, servo_damping=0.5, seed=seed)
+    estimator = ForceEstimator(EstimatorSettings(
+        friction_min_feed_mm_min=10.5, model_cutting_time_constant_s=tau_c,
+        friction_at_min_feed_a=float(plant.friction.current_a(np.array([10.5]))[0])))
+    errors, air = [], []
+    for k, block in enumerate(blocks_of(plant, [30.0] * 200 + [150.0] * 30 + [20.0] * 70
+                                        + [30.0] * 150)):
+        estimate = estimator.update(block.currents)
+        if 230 <= k < 300:
+            air.append(estimate.force_n)
+        if k >= 350:   # the next cut, settled
+            errors.append(estimate.force_n - float(np.mean(block.force_n)))
+    assert max(air) > EstimatorSettings().rezero_below_n   # it does swing out of the band
+    assert estimator.friction_scale == pytest.approx(1.0, abs=0.015)
+    assert abs(np.mean(errors)) < 1.0
+
+
 def test_no_re_zero_while_cutting_or_when_switched_off():
     off = ForceEstimator(EstimatorSettings(rezero_below_n=0.0))
     for block in _air_move(1.35, 2.0):
