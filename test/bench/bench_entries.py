@@ -48,7 +48,7 @@ def main() -> None:
         ident, cut_depth = identify_machine(machine)
         identified, monitor = identified_sets(machine, ident, cut_depth, depths_mm=(1.0, 3.0))
         chosen = verify(job, ident, tuple(identified), cut_depth, plants=args.plants,
-                        seed=machine.seed + machine.index)[0]
+                        seed=machine.seed + machine.index, monitor=tuple(monitor))[0]
         written = [*chosen.sets, *(monitor if chosen.name != 'defaults' else ())]
         if args.entry is not None:
             written.append(f'{ENTRY}{args.entry!r}')

@@ -171,7 +171,7 @@ def test_identify_lowers_the_entry_feed_where_the_deepest_entry_would_overshoot(
                                           experiments=experiments_dir)
     assert 'pmc_bridge.air_cut_override_pct=10.0' in identified
     chosen = verify(job, ident, tuple(identified), cut_depth, plants=5,
-                    seed=machine.seed + machine.index)[0]
+                    seed=machine.seed + machine.index, monitor=tuple(monitor))[0]
     written = [*chosen.sets, *monitor]
     # The bound: at most 100 N over the reference at any entry, in band in the cut.
     clean = simulate(job.with_sets(written)).metrics

@@ -654,15 +654,17 @@ def _identify(args: argparse.Namespace) -> int:
     identified = [*assignments('force_controller', controller),
                   *assignments('force_estimator', estimator),
                   *assignments('pmc_bridge', found.get('pmc_bridge', {}))]
-    predictions = verify(job, ident, identified, cut_depth, plants=args.plants)
+    # the drift monitor watches the identified model while cutting (where --job gives the
+    # job, the depth its program starts at as well); the verification cuts with it, as written
+    monitor = drift.identified(ident, job, depths, cut_depth,
+                               job.plant.depth_profile if args.job else None)
+    predictions = verify(job, ident, identified, cut_depth, plants=args.plants,
+                         monitor=assignments('force_controller', monitor))
     chosen = predictions[0]
     for assignment in chosen.sets[len(identified):]:   # the chosen law's own settings
         node, key, value = parse_set(assignment)
         found[node][key] = value
-    # the drift monitor watches the identified model while cutting
-    # (where --job gives the job, the depth its program starts at as well)
-    found['force_controller'].update(drift.identified(
-        ident, job, depths, cut_depth, job.plant.depth_profile if args.job else None))
+    found['force_controller'].update(monitor)
     sections: Mapping[str, Mapping[str, Any]] = (
         found if chosen.name != 'defaults' else {'force_controller': {}})
     if args.json:

@@ -277,7 +277,7 @@ def commission(machine: Machine, experiments: Path = EXPERIMENTS, plants: int = 
     # The user verifies on the job's file: the machine as commissioned, not its drift.
     job = job_experiment(machine, after_drift=False, experiments=experiments)
     predictions = verify(job, ident, tuple(identified), cut_depth, plants=plants,
-                         seed=machine.seed + machine.index)
+                         seed=machine.seed + machine.index, monitor=tuple(monitor))
     return Commissioned(tuple(identified), predictions[0], tuple(predictions), tuple(monitor))
 
 
