@@ -89,11 +89,12 @@ test-all: lint
 		$(PY) -m pytest -q -n $(JOBS) test/core
 
 # make bench: issue 9's table, old beside new, in one run (about ten minutes), then
-# commissioning on 200 simulated machines (about ten more);
+# commissioning on 200 simulated machines beside the oracle's 500-point sweep on each (about
+# 45 minutes on 2 cores);
 # make bench-all: every benchmark in test/bench/ (each prints its own details).
 bench: setup
 	$(PY) test/bench/bench_table.py
-	$(PY) test/bench/bench_population.py --machines 200
+	$(PY) test/bench/bench_population.py --machines 200 --oracle
 
 bench-all: setup
 	@for f in test/bench/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done
