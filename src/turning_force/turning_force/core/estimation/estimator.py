@@ -297,7 +297,9 @@ def _rezero(ep: np.ndarray, es: np.ndarray, force: float, dt: float, feed: np.nd
     model = pairwise_sum(work, n, n)
     if abs(model) < 1e-9 * n:
         return
-    es[ES_WINDOW + W_READ] += sign * n * (mean_q - ep[E_MAP_OFF]) - per * tail_sum
+    # the cut force's tail pushes the same way whichever way the axis runs (Eq. 26: the q
+    # current's share of it is c_F F); the friction turns with the motion
+    es[ES_WINDOW + W_READ] += sign * (n * (mean_q - ep[E_MAP_OFF]) - per * tail_sum)
     es[ES_WINDOW + W_MODEL] += model
     es[ES_WINDOW + W_TIME] += n * dt
     # in the approach a cut's contact rises through the lift before it ends it: its readings
