@@ -618,6 +618,7 @@ def _identify(args: argparse.Namespace) -> int:
     from turning_force.core.experiment import assignments, parse_set
     from turning_force.core.identify import IdentifySettings
     from turning_force.core.verification import (
+        drifted_plants,
         entry_depths_mm,
         entry_override_pct,
         friction_beyond_reach,
@@ -677,7 +678,8 @@ def _identify(args: argparse.Namespace) -> int:
     else:
         _print_identification(ident, low, high, args.ksd_margin, depths, cut_depth)
         print(f'closed-loop verification on {job.run.name} ({chosen.plants} plants: the '
-              'identified one and plants drawn about it; band: steady <= 5 N, ripple <= 25 N):')
+              f'identified one, {args.plants} drawn about it and {len(drifted_plants(ident))} '
+              'drifts of it; band: steady <= 5 N, ripple <= 25 N):')
         for prediction in predictions:
             print(f'  {prediction.line()}')
         print(f'chosen: {chosen.name}'

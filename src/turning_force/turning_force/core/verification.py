@@ -191,7 +191,7 @@ def cost(steady_n: float, ripple_n: float) -> float:
 
 @dataclass(frozen=True)
 class Prediction:
-    """One candidate on the identified plant and the plants drawn about it."""
+    """One candidate on the identified plant, the plants drawn about it and its drifts."""
 
     name: str
     sets: tuple[str, ...]
@@ -354,9 +354,10 @@ def _tuned(job: Experiment, identified: Sequence[str], nominal: Sequence[str],
 def verify(job: Experiment, ident: Identification, identified: Sequence[str],
            cut_depth_mm: float, plants: int = 50, seed: int = 0,
            monitor: Sequence[str] = ()) -> list[Prediction]:
-    """The two stages of the module's text on the identified plant and ``plants`` drawn about
-    it, best first: ``identified`` are the identification's own ``--set`` assignments. The
-    first prediction is the choice; the candidates never chosen (the defaults beat them) come
+    """The two stages of the module's text on the identified plant, ``plants`` drawn about it
+    and its drifts, best first: ``identified`` are the identification's own ``--set``
+    assignments, ``monitor`` the drift monitor's as ``identify`` writes them. The first
+    prediction is the choice; the candidates never chosen (the defaults beat them) come
     last."""
     per_force = job.plant.current_per_force_a_n
     machines = [plant_sets(ident, cut_depth_mm, per_force)] + [
