@@ -42,7 +42,9 @@ at the same path; ``local`` starts a LocalCluster of ``--jobs`` workers.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
+import math
 import statistics
 import sys
 import time
@@ -74,25 +76,39 @@ COLUMNS = ('defaults', 'commissioned', 'pi identified', 'smc identified', 'mpc i
            'smc true model', 'mpc true model')
 # The oracle: a grid over each law's main gains, the Kalman filter's noise and the quantiser,
 # on the machine as it is at the job, the laws given its true model (issue 15's "sweep on the
-# true machine"); 500 points.
-KALMAN = [f'force_estimator.kalman_force_noise_n={n!r}' for n in (2.0, 4.0, 8.0, 16.0, 32.0)]
-QUANTISERS = ['force_controller.quantiser=error_feedback', 'force_controller.quantiser=nearest']
+# true machine"); 500 points. Per law its axes (a parameter and its values), the points their
+# product in this order (a store's oracle names its point by index).
+KALMAN = ('force_estimator.kalman_force_noise_n', (2.0, 4.0, 8.0, 16.0, 32.0))
+ORACLE_GRID: dict[str, tuple[tuple[str, tuple[Any, ...]], ...]] = {
+    'smc': (('force_controller.smc_surface', ('integral', 'nonlinear')),
+            ('force_controller.smc_lambda_per_s', (5.0, 10.0, 20.0)),
+            ('force_controller.smc_epsilon_n', (0.0, 25.0, 50.0, 100.0, 200.0)), KALMAN,
+            ('force_controller.quantiser', ('error_feedback', 'nearest'))),
+    'mpc': (('force_controller.mpc_switch_penalty', (0.0, 0.25, 0.5, 2.0, 8.0)),
+            ('force_controller.mpc_horizon_s', (0.15, 0.3, 0.6)), KALMAN),
+    'pi': (('force_controller.pi_kp_pct_per_n', (0.005, 0.01, 0.02, 0.03, 0.05)),
+           ('force_controller.pi_ki_pct_per_n_s', (0.05, 0.1, 0.2, 0.5, 1.0)), KALMAN),
+}
 ORACLE: list[tuple[str, ...]] = [
-    *(('force_controller.controller=smc', f'force_controller.smc_surface={surface}',
-       f'force_controller.smc_lambda_per_s={lam!r}', f'force_controller.smc_epsilon_n={eps!r}',
-       kalman, quantiser)
-      for surface in ('integral', 'nonlinear') for lam in (5.0, 10.0, 20.0)
-      for eps in (0.0, 25.0, 50.0, 100.0, 200.0) for kalman in KALMAN
-      for quantiser in QUANTISERS),
-    *(('force_controller.controller=mpc', f'force_controller.mpc_switch_penalty={rho!r}',
-       f'force_controller.mpc_horizon_s={horizon!r}', kalman)
-      for rho in (0.0, 0.25, 0.5, 2.0, 8.0) for horizon in (0.15, 0.3, 0.6)
-      for kalman in KALMAN),
-    *(('force_controller.controller=pi', f'force_controller.pi_kp_pct_per_n={kp!r}',
-       f'force_controller.pi_ki_pct_per_n_s={ki!r}', kalman)
-      for kp in (0.005, 0.01, 0.02, 0.03, 0.05) for ki in (0.05, 0.1, 0.2, 0.5, 1.0)
-      for kalman in KALMAN),
-]
+    (f'force_controller.controller={law}',
+     *(f'{key}={value if isinstance(value, str) else repr(value)}'
+       for (key, _), value in zip(axes, point, strict=True)))
+    for law, axes in ORACLE_GRID.items()
+    for point in itertools.product(*(values for _, values in axes))]
+
+
+def oracle_grid() -> list[str]:
+    """The oracle's grid, one line per law: each axis with its values, and the points."""
+    lines = []
+    for law, axes in ORACLE_GRID.items():
+        text = ' x '.join(
+            f'{key.split(".")[1]} ' + '/'.join(v if isinstance(v, str) else f'{v:g}'
+                                               for v in values)
+            for key, values in axes)
+        lines.append(f'{law}: {text} ({math.prod(len(values) for _, values in axes)} points)')
+    return lines
+
+
 SMC = ('force_controller.controller=smc', 'force_controller.smc_surface=integral',
        'force_controller.smc_epsilon_n=0.0')
 MPC = ('force_controller.controller=mpc',)
@@ -301,6 +317,8 @@ def report(machines: list[Machine], results: dict[int, dict[str, Any]], oracle: 
             1.2 * r['oracle'][0], r['oracle'][0] + 1.0)]
         print(f'  oracle ({len(ORACLE)} points, true model) holds in band   '
               f'{len(holdable):4d} / {n}')
+        for line in oracle_grid():
+            print(f'    {line}')
         print(f'  commissioned in band, of those                   {held:4d} / {len(holdable)}'
               f'  ({held / max(len(holdable), 1):.1%}; target 95 %)')
         print(f'  commissioned in band, of all                     '
