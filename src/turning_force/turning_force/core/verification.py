@@ -30,10 +30,10 @@ the identified plant drifted (:func:`drifted_plants`): issue 16's four drifts at
 machine makes them between commissioning and a job (:data:`DRIFT_SIZES`; a third of the
 population's machines drift). Every cut runs with the drift monitor's settings as ``identify``
 writes them: the monitor takes a lag drift into the predictive law's model, and what is
-verified is what is written. Without it a servo drift of 1.28 (population seed 15 #99) was
-predicted to ring where the written loop adopts the drift and holds; with the drifted plants,
-over seed 42's first 38 machines, 5 choices changed, each 0.02-0.13 N better on the machine
-at the job, none worse.
+verified is what is written: without it, population seed 15 #99's identified plant slowed
+x1.35 and x1.5 was predicted at 2.4 and 3.5-5.2 N steady, where the written loop adopts the
+drift and holds 1.0-1.4 N. With the drifted plants, over seed 42's first 38 machines, 5
+choices changed, each 0.02-0.13 N better on the machine at the job, none worse.
 Two rules keep identification from writing settings predicted worse than none: a candidate that
 holds fewer plants in band than the defaults, or whose steady error on the identified plant is
 more than 1 N over theirs, is never chosen (the defaults then win). A count of plants in band
@@ -363,7 +363,7 @@ def verify(job: Experiment, ident: Identification, identified: Sequence[str],
     machines = [plant_sets(ident, cut_depth_mm, per_force)] + [
         plant_sets(ident, cut_depth_mm, per_force, drawn)
         for drawn in draw_plants(ident, plants, seed)]
-    drawn = len(machines)
+    first_drifted = len(machines)
     machines += [plant_sets(ident, cut_depth_mm, per_force, values)
                  for values in drifted_plants(ident)]
     machines = [[*sets, f'lathe_sim.seed={seed + k + 1}'] for k, sets in enumerate(machines)]
@@ -376,8 +376,8 @@ def verify(job: Experiment, ident: Identification, identified: Sequence[str],
         steady = [r[0] for r in results]
         costs = [cost(s, r) for s, _, r in results]
         in_band = sum(s <= BAND_STEADY_N and r <= BAND_RIPPLE_N for s, _, r in results)
-        about = sum(costs[1:drawn]) / max(drawn - 1, 1)
-        after = sum(costs[drawn:]) / max(len(costs) - drawn, 1)
+        about = sum(costs[1:first_drifted]) / max(first_drifted - 1, 1)
+        after = sum(costs[first_drifted:]) / max(len(costs) - first_drifted, 1)
         score = (0.5 * costs[0] + 0.5 * about) * (1.0 - DRIFT_WEIGHT) + DRIFT_WEIGHT * after
         predictions.append(Prediction(name, sets, *results[0], in_band, len(results),
                                       max(steady), score))
