@@ -21,10 +21,12 @@ from turning_force.core.kernel.simulate import simulate
 from turning_force.core.verification import (
     BAND_RIPPLE_N,
     BAND_STEADY_N,
+    DRIFT_SIZES,
     FLOORS,
     MAX_COST,
     cost,
     draw_plants,
+    drifted_plants,
     estimates,
     plant_sets,
     verify,
@@ -97,6 +99,36 @@ def test_a_drawn_exponent_turns_the_force_about_the_feed_it_was_fitted_at(experi
     # and each drawn plant is one the simulator runs (K_s within its bound)
     for drawn in plants[:20]:
         job.with_sets(plant_sets(ident, 1.0, job.plant.current_per_force_a_n, drawn))
+
+
+def test_the_drifted_plants_are_issue_16s_drifts_of_the_identified_plant(experiments_dir):
+    # Each drift of the population's generator at its smallest, middle and largest size,
+    # applied to the identified plant alone: dead time +20, 35, 50 ms; process gain (the
+    # force at every feed), the servo's lag and the friction curve x1.2, 1.35, 1.5. One
+    # verification holds the identified plant, the drawn ones and these.
+    ident, job, predictions = commissioned(experiments_dir, MACHINES['kienzle'], plants=2)
+    per = job.plant.current_per_force_a_n
+
+    def plant(values=None):
+        return job.with_sets(plant_sets(ident, 1.0, per, values)).plant
+
+    nominal = plant()
+    drifted = [plant(values) for values in drifted_plants(ident)]
+    assert len(drifted) == 4 * len(DRIFT_SIZES)
+    assert {p.plants for p in predictions} == {1 + 2 + len(drifted)}
+    for (added_s, factor), (dead, gain, servo, friction) in zip(
+            DRIFT_SIZES, (drifted[k:k + 4] for k in range(0, len(drifted), 4)), strict=True):
+        assert dead.pmc_dead_time_s == pytest.approx(nominal.pmc_dead_time_s + added_s)
+        assert gain.specific_cutting_force_n_mm2 == pytest.approx(
+            factor * nominal.specific_cutting_force_n_mm2)
+        assert servo.servo_time_constant_s == pytest.approx(
+            factor * nominal.servo_time_constant_s)
+        for key in ('friction_at_min_feed_a', 'friction_at_max_feed_a'):
+            assert getattr(friction, key) == pytest.approx(factor * getattr(nominal, key))
+        # and nothing else moved
+        assert dead.replace(pmc_dead_time_s=nominal.pmc_dead_time_s) == nominal
+        assert friction.replace(friction_at_min_feed_a=nominal.friction_at_min_feed_a,
+                                friction_at_max_feed_a=nominal.friction_at_max_feed_a) == nominal
 
 
 def test_the_defaults_win_over_a_candidate_that_holds_fewer_plants(experiments_dir):
