@@ -2,10 +2,13 @@
 // ROS 2 live connection: @foxglove/ws-protocol speaks the protocol, @foxglove/rosmsg parses each
 // channel's ros2msg schema, @foxglove/rosmsg2-serialization decodes the CDR payloads.
 //
-//   node client.js ws://127.0.0.1:PORT SECONDS
+//   node client.js ws://127.0.0.1:PORT SECONDS [TOPIC,TOPIC,... [WAIT_SECONDS]]
 //
 // Subscribes to every channel the server advertises, decodes every message for SECONDS after
-// the first force estimate arrives, then prints one JSON object: per topic, the channel's
+// the first force estimate arrives and, if TOPICs are named, until a message of each has come
+// too (for at most WAIT_SECONDS, 20 unless told, after the first estimate: a latched message
+// reaches the server only once ROS discovery has matched its publisher, which a loaded machine
+// can take seconds to do), then prints one JSON object: per topic, the channel's
 // encodings and schema name, the number of messages decoded, each stamped message's header stamp
 // ([sec, nanosec]) and the values of the small topics (reference, band, diagnostics' names).
 // A message that does not decode ends the client with exit code 1.
@@ -15,8 +18,11 @@ const { FoxgloveClient } = require('@foxglove/ws-protocol');
 const { parse } = require('@foxglove/rosmsg');
 const { MessageReader } = require('@foxglove/rosmsg2-serialization');
 
-const [url, secondsText] = process.argv.slice(2);
+const [url, secondsText, awaitedText = '', waitText = '20'] = process.argv.slice(2);
 const seconds = Number(secondsText);
+const awaited = awaitedText.split(',').filter((topic) => topic !== '');
+const waitSeconds = Number(waitText);
+let started = null; // when the first force estimate came [ms]
 // foxglove-sdk servers name the protocol foxglove.sdk.v1: the same messages as
 // foxglove.websocket.v1 under a new name. The client offers both, as the Foxglove app does, and
 // the server picks.
@@ -37,6 +43,17 @@ function decoderOf(channel) {
     return (bytes) => JSON.parse(text.decode(bytes));
   }
   throw new Error(`${channel.topic}: no decoder for ${channel.encoding}/${channel.schemaEncoding}`);
+}
+
+// Finishes once every awaited topic has a message, or WAIT_SECONDS after the first estimate
+// (the test then names what never came).
+function finishWhenHeard() {
+  const missing = awaited.filter((topic) => !(topics[topic] && topics[topic].count > 0));
+  if (missing.length === 0 || Date.now() - started >= waitSeconds * 1000) {
+    finish();
+  } else {
+    finishing = setTimeout(finishWhenHeard, 100);
+  }
 }
 
 function finish() {
@@ -84,7 +101,8 @@ client.on('message', ({ subscriptionId, data }) => {
     }
   }
   if (finishing === null && topic === '/force/estimate') {
-    finishing = setTimeout(finish, seconds * 1000);
+    started = Date.now();
+    finishing = setTimeout(finishWhenHeard, seconds * 1000);
   }
 });
 
