@@ -71,16 +71,22 @@ FLOORS = {'dead_time_s': 0.02, 'relative': 0.15, 'exponent': 0.03, 'noise': 0.20
 # 7.1.3, as Park's Fig. 8 file): lambda and the boundary layer (0: from the balance condition);
 # PI; and the uncommissioned defaults.
 KALMAN_SCALES = (1.0, 0.5, 0.25)
+# The sliding mode and PI laws ask a level between the table's: the job's own quantiser, and
+# the product's error feedback (a job file may round, as Park's Fig. 8 does)
+QUANTISERS = {'': (), ', error feedback': ('force_controller.quantiser=error_feedback',)}
 CANDIDATES: Mapping[str, tuple[str, ...] | None] = {
     **{f'mpc, rho {rho:g}, horizon {horizon:g} s': (
         'force_controller.controller=mpc', f'force_controller.mpc_switch_penalty={rho!r}',
         f'force_controller.mpc_horizon_s={horizon!r}')
        for rho in (0.0, 0.25, 0.5, 2.0) for horizon in (0.15, 0.3, 0.6)},
-    **{f'smc, lambda {lam:g}, epsilon {eps:g} N': (
+    **{f'smc, lambda {lam:g}, epsilon {eps:g} N{name}': (
         'force_controller.controller=smc', 'force_controller.smc_surface=integral',
-        f'force_controller.smc_lambda_per_s={lam!r}', f'force_controller.smc_epsilon_n={eps!r}')
-       for lam in (5.0, 10.0, 20.0) for eps in (0.0, 50.0, 200.0)},
-    'pi': ('force_controller.controller=pi',),
+        f'force_controller.smc_lambda_per_s={lam!r}', f'force_controller.smc_epsilon_n={eps!r}',
+        *quantiser)
+       for lam in (5.0, 10.0, 20.0) for eps in (0.0, 50.0, 200.0)
+       for name, quantiser in QUANTISERS.items()},
+    **{f'pi{name}': ('force_controller.controller=pi', *quantiser)
+       for name, quantiser in QUANTISERS.items()},
     'defaults': None,
 }
 PER_LAW = 4          # the best of each law on the identified plant go on to every plant
