@@ -10,10 +10,12 @@ friction error the identified plant does not have."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from turning_force.commands.population import draw, run_job
 from turning_force.core.experiment import assignments, load_experiment
 from turning_force.core.identify import Estimate, identify
 from turning_force.core.kernel.record import record
@@ -21,6 +23,7 @@ from turning_force.core.kernel.simulate import simulate
 from turning_force.core.verification import (
     BAND_RIPPLE_N,
     BAND_STEADY_N,
+    CANDIDATES,
     DRIFT_SIZES,
     FLOORS,
     MAX_COST,
@@ -142,6 +145,31 @@ def test_the_defaults_win_over_a_candidate_that_holds_fewer_plants(experiments_d
     assert defaults in allowed
     assert predictions[:len(allowed)] == allowed
     assert [p.score for p in allowed] == sorted(p.score for p in allowed)
+
+
+def test_the_sliding_mode_and_pi_candidates_are_verified_with_error_feedback_too():
+    # Park's Fig. 8 file rounds the request to the nearest level, as the paper's PMC did, and a
+    # job file may. Population seed 42's #138 (a 9.2 rad/s servo damped at 0.34, slowed x1.39
+    # by the job, interrupted cuts): PI rounded cycles between two levels, far out of the band;
+    # with the product's error feedback the levels average to the request, in the band's ripple.
+    machine = replace(draw(139, 42)[138], approach_s=1.0)
+    experiments = Path(__file__).resolve().parents[2] / 'config' / 'experiments'
+    cut = {quantiser: run_job(machine, ['force_controller.controller=pi',
+                                        f'force_controller.quantiser={quantiser}'], experiments)
+           for quantiser in ('nearest', 'error_feedback')}
+    assert cut['nearest']['ripple_p2p_n'] > 2.0 * BAND_RIPPLE_N
+    assert cut['error_feedback']['ripple_p2p_n'] <= BAND_RIPPLE_N
+    assert cut['error_feedback']['steady_mean_abs_error_n'] < \
+        0.5 * cut['nearest']['steady_mean_abs_error_n']
+    # so each of those candidates goes to the plants with the job's quantiser and with it
+    for name, sets in CANDIDATES.items():
+        if sets is not None and sets[0] in ('force_controller.controller=smc',
+                                            'force_controller.controller=pi'):
+            twin = name.removesuffix(', error feedback')
+            assert CANDIDATES[twin] is not None
+            assert 'force_controller.quantiser=error_feedback' not in CANDIDATES[twin]
+            assert CANDIDATES[twin + ', error feedback'] == (
+                *CANDIDATES[twin], 'force_controller.quantiser=error_feedback')
 
 
 def test_the_score_is_the_distance_from_the_band():
