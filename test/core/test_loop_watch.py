@@ -22,6 +22,7 @@ from turning_force.core.control.law import (
     CS_O_CROSSOVER,
     CS_O_HALF,
     CS_O_HOLD,
+    CS_O_HSUM,
     CS_O_TOP,
     model_half_period_s,
 )
@@ -322,6 +323,23 @@ def test_no_alarm_while_the_loop_is_open():
     # period's peak to peak counted them as one, alarmed at 13 s in the threading pass).
     experiment = load_experiment(EXPERIMENTS / 'shopfloor.yaml')
     assert simulate(experiment).metrics['oscillation_alarms'] == 0.0
+
+
+def test_the_level_a_cycle_is_held_at_is_the_level_the_pmc_applied():
+    # The reaction starts from the cycle's mean level. Over a spell the PMC holds a level of
+    # its own (the entry feed) the law still asks for its own, 150 % against a force below the
+    # reference: summed, that level had the reaction start a cycle at 100 % where the PMC had
+    # applied 10-50 % (bench_entries.py seed 7 #19: 1,132 N; 670 N from the applied mean).
+    experiment = load_experiment(FIG8).with_sets([PRODUCT_REACTION])
+    controller = make_controller(experiment.controller)
+    state, dt = controller.arrays[1], experiment.controller.control_period_s
+    for reason, applied in ((Reason.AIR_CUT, 20.0), (Reason.NORMAL, None)):
+        before = state[CS_O_HSUM]
+        sent = controller.update(300.0, 0.0).override_pct
+        assert sent > 20.0   # 300 N against the reference: the law asks for more
+        controller.applied(sent if applied is None else applied, True, int(reason))
+        assert state[CS_O_HSUM] - before == pytest.approx(
+            (sent if applied is None else applied) * dt, rel=1e-12)
 
 
 def alarmed(period_s: float, *sets: str) -> tuple[object, FloatArray, float, int]:

@@ -840,6 +840,9 @@ def controller_applied(cp: np.ndarray, cs: np.ndarray, applied: float, engaged: 
         else 1.0
     drift_applied(cs[CS_DRIFT:CS_LAW], applied)
     if reason != REASON_NORMAL and math.isfinite(applied):
+        # the oscillation detector's sum of the levels over the swing: the level applied,
+        # not the law's (a law held at the entry feed asks for 150 %)
+        cs[CS_O_HSUM] += (clip(cp, applied) - cs[CS_HELD]) * cp[C_PERIOD]
         cs[CS_HELD] = clip(cp, applied)
         cs[CS_CARRY] = 0.0
         law_reset(int(cp[C_KIND]), cp, cs)
