@@ -693,6 +693,7 @@ def test_a_feed_that_does_not_follow_the_override_names_no_lag() -> None:
     assert feed_session(1.5, follows=False) == ''
 
 
+@pytest.mark.slow   # three machines commissioned in full: a minute (make test-all)
 def test_no_feed_test_alarm_on_population_machines_between_whole_periods() -> None:
     # Population seed 42 with a 1 s approach, machines whose lag did not drift: #56 (59 ms of
     # dead time, a 0.10 s servo: the bank holds 5.9 periods by interpolating the override,
