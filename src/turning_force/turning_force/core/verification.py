@@ -71,8 +71,9 @@ FLOORS = {'dead_time_s': 0.02, 'relative': 0.15, 'exponent': 0.03, 'noise': 0.20
 # 7.1.3, as Park's Fig. 8 file): lambda and the boundary layer (0: from the balance condition);
 # PI; these two with the job's quantiser and with the product's error feedback; and the
 # uncommissioned defaults. Park's Fig. 8 file rounds the request (as the paper's PMC did): PI
-# rounded cycled between two levels on population seed 42's #138 (a 6.6 rad/s servo damped
-# at 0.34, interrupted cuts), 40 N steady, and with error feedback held 4.4 N, the oracle's.
+# rounded cycled between two levels on population seed 42's #138 (a 9.2 rad/s servo damped
+# at 0.34 slowed x1.39, interrupted cuts), 37.9 N steady with the identified settings, and
+# with error feedback held 4.2-4.4 N (the oracle 4.18 N).
 KALMAN_SCALES = (1.0, 0.5, 0.25)
 # The sliding mode and PI laws ask a level between the table's: the job's own quantiser, and
 # the product's error feedback (a job file may round, as Park's Fig. 8 does)
