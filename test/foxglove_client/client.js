@@ -46,7 +46,7 @@ function decoderOf(channel) {
 }
 
 // Finishes once every awaited topic has a message, or WAIT_SECONDS after the first estimate
-// (the test then names what never came).
+// (the output then shows the awaited topic with no values).
 function finishWhenHeard() {
   const missing = awaited.filter((topic) => !(topics[topic] && topics[topic].count > 0));
   if (missing.length === 0 || Date.now() - started >= waitSeconds * 1000) {

@@ -75,8 +75,6 @@ FLOORS = {'dead_time_s': 0.02, 'relative': 0.15, 'exponent': 0.03, 'noise': 0.20
 # at 0.34 slowed x1.39, interrupted cuts), 37.9 N steady with the identified settings, and
 # with error feedback held 4.2-4.4 N (the oracle 4.18 N).
 KALMAN_SCALES = (1.0, 0.5, 0.25)
-# The sliding mode and PI laws ask a level between the table's: the job's own quantiser, and
-# the product's error feedback (a job file may round, as Park's Fig. 8 does)
 QUANTISERS = {'': (), ', error feedback': ('force_controller.quantiser=error_feedback',)}
 CANDIDATES: Mapping[str, tuple[str, ...] | None] = {
     **{f'mpc, rho {rho:g}, horizon {horizon:g} s': (
