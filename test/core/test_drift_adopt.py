@@ -323,15 +323,18 @@ def test_a_ring_the_alarm_caught_before_the_drift_was_named_is_let_go_once_it_is
         smc_machine: tuple[population.Machine, list[str]]) -> None:
     # The same machine, its dead time +50 %, named from the force alone (the feed test off:
     # it names the drift at the first override step) over a window of 2 s
-    # (drift_memory_s): the drifted loop rings after the second depth step and the
-    # oscillation alarm is raised (4.4 s) before the drift is named (4.4 s, a few periods
-    # later). The reaction's detuned
+    # (drift_memory_s), the entry feed held for cut_settle_s only (the rise limit off): the
+    # drifted loop rings after the second depth step and the oscillation alarm is raised
+    # (4.4 s) before the drift is named (5 periods later). (With the entry held until the force is
+    # established, this loop enters from a settled cut and does not ring: 5.0 N steady, 14 N
+    # ripple with the commissioned model kept.) The reaction's detuned
     # law would hold the loop to the end (25 N steady, the commissioned model kept); the model
     # taken is the ring's cure, and the reaction lets go: the loop, now on the adopted model,
     # rings no more (no second alarm) and ends in band.
     machine, sets = smc_machine
     late = run(machine, [*sets, 'force_controller.drift_memory_s=2.0',
-                         'force_controller.drift_feed_test=false'],
+                         'force_controller.drift_feed_test=false',
+                         'pmc_bridge.entry_rise_limit_per_s=0.0'],
                smc_drifted(machine, 'dead time'), adopt=True)
     alarm, taken = late.trace['oscillation_alarm'], late.trace['drift_adopted']
     raised, adopted = np.argmax(alarm > 0), np.argmax(taken > 0)

@@ -228,6 +228,49 @@ def test_the_air_cut_override_until_the_cut_is_established_and_again_after_the_e
     assert (left.applied_pct, left.reason, left.engaged) == (100.0, Reason.AIR_CUT, False)
 
 
+def _entry_hold_s(gate: OverrideGate, force) -> float:
+    """Seconds from the depth step (t = 0) to the first block the gate lets the request
+    (150 %) through, with ``force(t)`` the force estimate at each block's end; the entry feed
+    must have held while the tool was in the cut."""
+    for k in range(400):
+        t_s = (k + 1) * PERIOD_S
+        answer = block(gate, k, force(t_s), 150.0)
+        if answer.reason == Reason.NORMAL:
+            return t_s
+        assert answer.applied_pct == 30.0
+    raise AssertionError('the entry feed held for 4 s')
+
+
+@pytest.mark.parametrize('tau_c_s', [0.1, 0.2, 0.4])
+def test_the_entry_feed_holds_until_the_force_is_established(tau_c_s):
+    # A chip that forms slowly: after the depth step the force rises as 600 (1 - exp(-t /
+    # tau_c)) at the entry feed. Its rise over its level is exp(-x) / (tau_c (1 - exp(-x))),
+    # x = t / tau_c, which falls to entry_rise_limit_per_s (0.5 / s) at exp(-x) = 0.5 tau_c /
+    # (1 + 0.5 tau_c), the force then within 5 %, 9 % and 17 % of its level: 0.30 s at 0.1 s,
+    # 0.48 s at 0.2 s, 0.72 s at 0.4 s. The slope is the least squares one over the last 0.1 s,
+    # the slope 0.05 s before; with the lag of its fall below the limit the hold ends up to
+    # 0.15 s after; never before cut_settle_s (0.3 s after the engagement at 100 N).
+    gate = gate_with(air_cut_override_pct=30.0)
+    held = _entry_hold_s(gate, lambda t: 600.0 * (1.0 - math.exp(-t / tau_c_s)))
+    x = -math.log(0.5 * tau_c_s / (1.0 + 0.5 * tau_c_s))
+    engaged = -tau_c_s * math.log(1.0 - 100.0 / 600.0) + 0.02
+    assert max(x * tau_c_s, engaged + 0.3) <= held <= max(x * tau_c_s + 0.15, engaged + 0.32)
+
+
+def test_the_entry_feed_holds_cut_settle_s_only_where_asked_and_at_most_entry_hold_max_s():
+    rising = lambda t: 600.0 * (1.0 - math.exp(-t / 0.4))   # noqa: E731
+    # entry_rise_limit_per_s 0: the hold is cut_settle_s from the first block over 100 N
+    # (0.08 s; the engagement a block later), as a fixed hold was
+    gate = gate_with(air_cut_override_pct=30.0, entry_rise_limit_per_s=0.0)
+    assert _entry_hold_s(gate, rising) == pytest.approx(0.08 + 0.3, abs=1e-9)
+    # a force that keeps rising faster than the limit (a ramp of 2,000 N/s from 200 N: 10/s
+    # down to 1.7/s over the first 0.5 s) is held no longer than entry_hold_max_s from the
+    # first block over 100 N (0.01 s)
+    gate = gate_with(air_cut_override_pct=30.0, entry_hold_max_s=0.5)
+    assert _entry_hold_s(gate, lambda t: 200.0 + 2000.0 * t) == pytest.approx(0.01 + 0.5,
+                                                                               abs=1e-9)
+
+
 def test_air_cut_in_a_simulated_approach(tmp_path):
     # Park's fig8 lathe approaching for 1 s in air: the controller asks for 150 % (no force),
     # the bridge holds 100 % until the tool is in the part, then regulates.

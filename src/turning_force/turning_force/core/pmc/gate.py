@@ -57,7 +57,10 @@ G_RECENT_AT, G_PENDING_AT, G_PENDING_CAP, G_WINDOW_AT = range(26, 30)
 # [mm/rev] and the spindle_speed_rpm parameter
 G_FOLLOW_S, G_FOLLOW_TOL, G_FOLLOW_LAG, G_FEED_REV, G_RPM, G_FOLLOW_OVER = range(30, 36)
 G_HAND_BACK = 36
-G_SIZE = 37
+# the entry feed's hold past G_SETTLE: the force's rise it waits out [per s of its level], the
+# longest hold [blocks], the slope's window [blocks] and where its ring starts
+G_RISE_LIMIT, G_HOLD_MAX, G_SLOPE_N, G_SLOPE_AT = range(37, 41)
+G_SIZE = 41
 REACTION_NONE, REACTION_ALARM, REACTION_STOP, REACTION_HOLD = 0, 1, 2, 3
 DIAL_MIN, DIAL_PRODUCT, DIAL_IGNORE = 0, 1, 2
 # hold causes (the overload hold's detail): saturated, not finite, above the limit
@@ -98,7 +101,9 @@ GS_F_HI, GS_F_LO, GS_F_OFF_S, GS_F_TRIPPED, GS_F_ACTUAL, GS_F_EDGE, GS_F_RPM = r
 # the tool in use (the machine's tool input, NaN: not given) and whether it has no section in
 # the tools file (the feed handed back until a tool with one comes)
 GS_TOOL, GS_TOOL_BAD = 74, 75
-GS_FIXED = 76
+# the entry: 1 while the entry feed holds; the ring of its last forces: count and next place
+GS_ENTERING, GS_E_N, GS_E_NEXT = 76, 77, 78
+GS_FIXED = 79
 BLOCK_FIELDS = 6     # a block in a ring: end time, force, applied, reachable, event, breakage
 # a cut record (CUT_*): what a finished cut leaves in the gate's output row
 CUT_INDEX, CUT_START, CUT_END, CUT_FEED_S, CUT_MAXF, CUT_MEANF, CUT_MINO = range(7)
@@ -273,6 +278,7 @@ def _engagement(gp: np.ndarray, gs: np.ndarray, force: float, cut: np.ndarray) -
         gs[GS_RUN] = gs[GS_RUN] + 1.0 if force > gp[G_ENGAGE] else 0.0
         if gs[GS_RUN] >= debounce:
             gs[GS_ENGAGED], gs[GS_CUT_BLOCKS] = 1.0, gs[GS_RUN]
+            gs[GS_ENTERING], gs[GS_E_N], gs[GS_E_NEXT] = 1.0, 0.0, 0.0
             back = min(int(gs[GS_RUN]) - 1, int(gs[GS_R_N]))
             at, cap = int(gp[G_RECENT_AT]), int(debounce)
             for age in range(back - 1, -1, -1):
@@ -284,13 +290,54 @@ def _engagement(gp: np.ndarray, gs: np.ndarray, force: float, cut: np.ndarray) -
     gs[GS_CUT_BLOCKS] += 1.0
     gs[GS_RUN] = gs[GS_RUN] + 1.0 if force < gp[G_EXIT] else 0.0
     if gs[GS_RUN] >= debounce:
-        gs[GS_ENGAGED] = 0.0
+        gs[GS_ENGAGED], gs[GS_ENTERING] = 0.0, 0.0
         learned = False
         if gs[GS_LEARNING] != 0.0:
             _learn(gp, gs)
             learned = gs[GS_L_REFUSED] == LEARN_OK
         _cut_record(gp, gs, learned, True, cut)
         gs[GS_RUN] = 0.0
+
+
+@compiled
+def _entry(gp: np.ndarray, gs: np.ndarray, force: float) -> None:
+    """Whether the entry feed still holds (``GS_ENTERING``): for cut_settle_s after the
+    engagement, then while the force still rises faster than entry_rise_limit_per_s of its
+    level, the cut not yet established, for at most entry_hold_max_s. The rise is the least
+    squares slope of the force over the last ``ENTRY_WINDOW_S``, the level its mean there.
+    Once ended, the hold does not come back within the cut.
+
+    A fixed hold ended the entry feed on a slow cut with its force still rising
+    (``bench_entries.py``, seed 15 #7: tau_c 0.19 s, the force at 316 N and climbing at
+    0.3 s): the predictive law learned its process gain ``F / z^g`` from it, too low, sent
+    150 % and entered 113 N over the reference."""
+    if gs[GS_ENTERING] == 0.0:
+        return
+    size, at = int(gp[G_SLOPE_N]), int(gp[G_SLOPE_AT])
+    i = int(gs[GS_E_NEXT])
+    gs[at + i] = force
+    gs[GS_E_NEXT] = (i + 1) % size
+    gs[GS_E_N] = min(gs[GS_E_N] + 1.0, float(size))
+    blocks = gs[GS_CUT_BLOCKS]
+    if blocks <= gp[G_SETTLE]:
+        return
+    if gp[G_RISE_LIMIT] <= 0.0 or blocks > gp[G_HOLD_MAX]:
+        gs[GS_ENTERING] = 0.0
+        return
+    n = int(gs[GS_E_N])
+    if n < 2:
+        return
+    oldest = (int(gs[GS_E_NEXT]) - n) % size
+    mean, middle = 0.0, 0.5 * (n - 1)
+    for j in range(n):
+        mean += gs[at + (oldest + j) % size]
+    mean /= n
+    sxy, sxx = 0.0, 0.0
+    for j in range(n):
+        sxy += (j - middle) * (gs[at + (oldest + j) % size] - mean)
+        sxx += (j - middle) * (j - middle)
+    if sxy / sxx / gp[G_PERIOD] <= gp[G_RISE_LIMIT] * mean:
+        gs[GS_ENTERING] = 0.0
 
 
 @compiled
@@ -334,6 +381,7 @@ def _observe(gp: np.ndarray, gs: np.ndarray, force: float, armed: bool, hold_sta
     detector, overload events, the overload reaction, tool breakage."""
     gs[GS_BLOCK_F] = force
     _engagement(gp, gs, force, cut)
+    _entry(gp, gs, force)
     acting = armed and _stand_down(gp, gs) == STAND_NONE
     limit = gp[G_REACT_FRACTION] * gp[G_OVERLOAD]
     if force > limit and gs[GS_IN_EVENT] == 0.0:
@@ -567,7 +615,7 @@ def _judge(gp: np.ndarray, gs: np.ndarray, t: float, dec: np.ndarray) -> None:
     engaged = gs[GS_ENGAGED] != 0.0
     if engaged and gp[G_FLOOR] > 0.0 and pct < gp[G_FLOOR]:
         pct, reason, code = gp[G_FLOOR], FEED_FLOOR, GD_FLOOR
-    entering = engaged and gs[GS_CUT_BLOCKS] <= gp[G_SETTLE]
+    entering = engaged and gs[GS_ENTERING] != 0.0
     if (not engaged or entering) and gp[G_AIR] > 0.0 and pct > gp[G_AIR]:
         pct, reason, code = gp[G_AIR], AIR_CUT, GD_AIR
     dial = _dial(gp, gs)
@@ -996,6 +1044,12 @@ def _refusal(code: int, s: BridgeSettings, level: float, low: float) -> str:
     return ''
 
 
+# The entry's rise is the force's slope over this window [s]: short beside the slow cuts'
+# tau_c (0.1-0.4 s) the hold waits out, and wide enough that a noisy drive's estimate (tens of
+# N) moves the slope by a few % of its level per s only.
+ENTRY_WINDOW_S = 0.1
+
+
 def _gate_params(s: BridgeSettings, table: OverrideTable) -> FloatArray:
     """The compiled gate's parameters (``G_*``), the places of its rings among them."""
     period = s.control_period_s
@@ -1022,10 +1076,14 @@ def _gate_params(s: BridgeSettings, table: OverrideTable) -> FloatArray:
     p[G_FOLLOW_LAG], p[G_FOLLOW_OVER] = s.feed_follow_lag_s, s.feed_follow_overshoot
     p[G_FEED_REV], p[G_RPM] = s.programmed_feed_mm_rev, s.spindle_speed_rpm
     p[G_HAND_BACK] = s.hand_back_pct
+    p[G_RISE_LIMIT] = s.entry_rise_limit_per_s
+    p[G_HOLD_MAX] = math.ceil(s.entry_hold_max_s / period - 1e-9)
+    p[G_SLOPE_N] = max(2, round(ENTRY_WINDOW_S / period))
     p[G_RECENT_AT] = GS_FIXED
     p[G_PENDING_AT] = GS_FIXED + BLOCK_FIELDS * debounce
     p[G_PENDING_CAP] = debounce + settle
     p[G_WINDOW_AT] = p[G_PENDING_AT] + BLOCK_FIELDS * (debounce + settle)
+    p[G_SLOPE_AT] = p[G_WINDOW_AT] + window
     return p
 
 
@@ -1040,7 +1098,7 @@ def _tool_table(s: BridgeSettings, tools: ToolSections) -> FloatArray:
 
 def _gate_state(s: BridgeSettings, p: FloatArray) -> FloatArray:
     """The compiled gate's first state (``GS_*``, then its rings)."""
-    state = np.zeros(int(p[G_WINDOW_AT] + p[G_WINDOW]))
+    state = np.zeros(int(p[G_SLOPE_AT] + p[G_SLOPE_N]))
     state[GS_REQ] = state[GS_BLOCK_F] = math.nan
     state[GS_CMD_T] = state[GS_ARMED_T] = -math.inf
     state[GS_LAST_STATUS] = OK

@@ -92,8 +92,9 @@ class ShopFloorSettings(Settings):
         0.0, 'Feed floor while the tool is in the cut: a lower request is raised to it (the '
         'overload hold still holds the feed); 0: none', '%', low=0.0, high=100.0)
     air_cut_override_pct: float = setting(
-        30.0, "Override while the tool is out of the cut and for cut_settle_s after it enters "
-        "(the entry feed: AFC's FIDL, TMAC's approach override), never above the controller's "
+        30.0, "Override while the tool is out of the cut and after it enters until the force is "
+        "established (the entry feed: AFC's FIDL, TMAC's approach override; cut_settle_s, "
+        "entry_rise_limit_per_s), never above the controller's "
         'request; the controller starts from it when the cut is established; 0: off', '%',
         low=0.0, high=1000.0)
     engage_force_n: float = setting(
@@ -107,7 +108,15 @@ class ShopFloorSettings(Settings):
         'count as in (out of) the cut; at least one control period', 's', low=0.0, high=10.0)
     cut_settle_s: float = setting(
         0.3, 'After engagement, time left for the force to settle before its level counts '
-        '(tool breakage, teach-in)', 's', low=0.0, high=60.0)
+        '(tool breakage, teach-in), and the shortest hold of the entry feed', 's', low=0.0,
+        high=60.0)
+    entry_rise_limit_per_s: float = setting(
+        0.5, 'The entry feed holds past cut_settle_s while the force still rises faster than '
+        'this fraction of its level per second (the cut not yet established: a slow chip '
+        'formation); 0: cut_settle_s only', '1/s', low=0.0, high=100.0)
+    entry_hold_max_s: float = setting(
+        1.0, 'The longest hold of the entry feed after engagement, the force established or '
+        'not (cut_settle_s where that is longer)', 's', low=0.0, high=60.0)
     overload_reaction: str = setting(
         'none', "What a force above the reaction limit for reaction_delay_s does (AFC's OVLD): "
         'nothing (none), raise the alarm output (alarm), also hold the feed until re-armed '
