@@ -310,7 +310,14 @@ def _entry(gp: np.ndarray, gs: np.ndarray, force: float) -> None:
     A fixed hold ended the entry feed on a slow cut with its force still rising
     (``bench_entries.py``, seed 15 #7: tau_c 0.19 s, the force at 316 N and climbing at
     0.3 s): the predictive law learned its process gain ``F / z^g`` from it, too low, sent
-    150 % and entered 113 N over the reference."""
+    150 % and entered 113 N over the reference (70 N now). The rise waited out is the
+    axis feed's too, where an underdamped servo still swings back to the entry feed after
+    an exit: the predictive law's model rests on the entry level the gate holds, and the
+    ringing axis was at 13 % where the model held 30 % (seed 7 #17: 150 N over, 24 N now).
+    A law without that model pays for the wait in time only: on population seed 42's #138
+    (a servo damped at 0.34 and slowed x1.39) PI reached the reference after the 1 s settle
+    window at each re-entry, 9.5 N steady against 4.3 N. Leaving the feed's share of the
+    rise out of the wait gave that PI 3.9 N and brought 7 #17's 150 N back."""
     if gs[GS_ENTERING] == 0.0:
         return
     size, at = int(gp[G_SLOPE_N]), int(gp[G_SLOPE_AT])
@@ -1044,9 +1051,10 @@ def _refusal(code: int, s: BridgeSettings, level: float, low: float) -> str:
     return ''
 
 
-# The entry's rise is the force's slope over this window [s]: short beside the slow cuts'
-# tau_c (0.1-0.4 s) the hold waits out, and wide enough that a noisy drive's estimate (tens of
-# N) moves the slope by a few % of its level per s only.
+# The entry's rise is the force's least squares slope over this window [s]: short beside the
+# slow cuts' tau_c (0.1-0.4 s) the hold waits out. A noise of sigma in the estimate moves the
+# slope by sigma / sqrt(sum (j - mean j)^2) / T, about 11 sigma per s over 10 blocks; it can
+# only end the hold sooner (the first slope under the limit ends it), back to cut_settle_s.
 ENTRY_WINDOW_S = 0.1
 
 
