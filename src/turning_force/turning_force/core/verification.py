@@ -73,7 +73,8 @@ FLOORS = {'dead_time_s': 0.02, 'relative': 0.15, 'exponent': 0.03, 'noise': 0.20
 # uncommissioned defaults. Park's Fig. 8 file rounds the request (as the paper's PMC did): PI
 # rounded cycled between two levels on population seed 42's #138 (a 9.2 rad/s servo damped
 # at 0.34 slowed x1.39, interrupted cuts), 37.9 N steady with the identified settings, and
-# with error feedback held 4.2-4.4 N (the oracle 4.18 N).
+# with error feedback held 4.2-4.4 N (the oracle 4.18 N), with the entry feed held a fixed
+# 0.3 s (held until the force is established, its re-entries wait out the servo's swing: 9.5 N).
 KALMAN_SCALES = (1.0, 0.5, 0.25)
 QUANTISERS = {'': (), ', error feedback': ('force_controller.quantiser=error_feedback',)}
 CANDIDATES: Mapping[str, tuple[str, ...] | None] = {

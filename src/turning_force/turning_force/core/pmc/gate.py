@@ -300,6 +300,16 @@ def _engagement(gp: np.ndarray, gs: np.ndarray, force: float, cut: np.ndarray) -
 
 
 @compiled
+def _push(gs: np.ndarray, at: int, size: int, count: int, value: float) -> None:
+    """``value`` into the ring of ``size`` places at ``at``; its count of values in
+    ``gs[count]`` (at most ``size``), its next place in ``gs[count + 1]``."""
+    i = int(gs[count + 1])
+    gs[at + i] = value
+    gs[count + 1] = (i + 1) % size
+    gs[count] = min(gs[count] + 1.0, float(size))
+
+
+@compiled
 def _entry(gp: np.ndarray, gs: np.ndarray, force: float) -> None:
     """Whether the entry feed still holds (``GS_ENTERING``): for cut_settle_s after the
     engagement, then while the force still rises faster than entry_rise_limit_per_s of its
@@ -321,10 +331,7 @@ def _entry(gp: np.ndarray, gs: np.ndarray, force: float) -> None:
     if gs[GS_ENTERING] == 0.0:
         return
     size, at = int(gp[G_SLOPE_N]), int(gp[G_SLOPE_AT])
-    i = int(gs[GS_E_NEXT])
-    gs[at + i] = force
-    gs[GS_E_NEXT] = (i + 1) % size
-    gs[GS_E_N] = min(gs[GS_E_N] + 1.0, float(size))
+    _push(gs, at, size, GS_E_N, force)
     blocks = gs[GS_CUT_BLOCKS]
     if blocks <= gp[G_SETTLE]:
         return
@@ -334,16 +341,16 @@ def _entry(gp: np.ndarray, gs: np.ndarray, force: float) -> None:
     n = int(gs[GS_E_N])
     if n < 2:
         return
+    # least squares over j = 0..n-1: slope sum (j - mid) y_j / sum (j - mid)^2, the latter
+    # n (n^2 - 1) / 12
     oldest = (int(gs[GS_E_NEXT]) - n) % size
-    mean, middle = 0.0, 0.5 * (n - 1)
+    total, moment, middle = 0.0, 0.0, 0.5 * (n - 1)
     for j in range(n):
-        mean += gs[at + (oldest + j) % size]
-    mean /= n
-    sxy, sxx = 0.0, 0.0
-    for j in range(n):
-        sxy += (j - middle) * (gs[at + (oldest + j) % size] - mean)
-        sxx += (j - middle) * (j - middle)
-    if sxy / sxx / gp[G_PERIOD] <= gp[G_RISE_LIMIT] * mean:
+        y = gs[at + (oldest + j) % size]
+        total += y
+        moment += (j - middle) * y
+    slope = moment * 12.0 / (n * (n * n - 1.0)) / gp[G_PERIOD]
+    if slope <= gp[G_RISE_LIMIT] * total / n:
         gs[GS_ENTERING] = 0.0
 
 
@@ -415,10 +422,7 @@ def _observe(gp: np.ndarray, gs: np.ndarray, force: float, armed: bool, hold_sta
                 gs[GS_BREAK] = BREAK_DROP
             gs[GS_BREAK_F], gs[GS_BREAK_LEVEL] = force, level
     if settled:
-        i = int(gs[GS_W_NEXT])
-        gs[int(gp[G_WINDOW_AT]) + i] = force
-        gs[GS_W_NEXT] = (i + 1) % size
-        gs[GS_W_N] = min(gs[GS_W_N] + 1.0, float(size))
+        _push(gs, int(gp[G_WINDOW_AT]), size, GS_W_N, force)
 
 
 @compiled
