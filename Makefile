@@ -18,7 +18,11 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 # The compiled code's cache is keyed on every source of the core (core/codecache.py).
 KERNEL  := $(shell find src/turning_force/turning_force/core -name '*.py')
 
-setup: $(STAMPS)/package $(STAMPS)/kernel $(STAMPS)/foxglove-client
+setup: $(STAMPS)/msgs $(STAMPS)/package $(STAMPS)/kernel $(STAMPS)/foxglove-client
+
+# The set-up's steps and the lint run two at a time: the kernel's compilation (one core, about
+# 45 s) beside the messages' build and mypy.
+MAKEFLAGS += -j2
 
 $(STAMPS)/venv: requirements/ros.txt requirements/dev.txt
 	python3 -m venv $(VENV)
@@ -39,7 +43,8 @@ $(STAMPS)/msgs: $(STAMPS)/venv $(wildcard $(MSGS)/msg/*.msg) $(MSGS)/CMakeLists.
 	cmake --install $(BUILD) > /dev/null
 	@touch $@
 
-$(STAMPS)/package: $(STAMPS)/msgs src/turning_force/pyproject.toml
+# Our package (editable): pure Python, so the kernel compiles beside the messages' build.
+$(STAMPS)/package: $(STAMPS)/venv src/turning_force/pyproject.toml
 	$(PY) -m pip install --quiet --no-build-isolation --no-deps -e src/turning_force
 	@touch $@
 
@@ -68,7 +73,7 @@ run: setup
 reproduce: setup
 	$(VENV)/bin/turning-force reproduce
 
-lint: setup
+lint: $(STAMPS)/msgs $(STAMPS)/package
 	$(VENV)/bin/ruff check src test
 	$(VENV)/bin/mypy
 	$(VENV)/bin/lint-imports --no-cache
@@ -78,15 +83,15 @@ lint: setup
 # pytest-xdist spreads them over JOBS processes, each on a DDS domain of its own.
 JOBS ?= 2
 
-test: lint
-	$(PY) -m pytest -q -n $(JOBS) -m 'not slow' test
+test: setup lint
+	$(PY) -m pytest -q -n $(JOBS) --dist worksteal -m 'not slow' test
 
 # Then the core's tests again with numba's bounds checks on (its own cache: the checks are
 # compiled in): compiled code checks no index, and a write past an array corrupts the heap.
-test-all: lint
-	$(PY) -m pytest -q -n $(JOBS) test
+test-all: setup lint
+	$(PY) -m pytest -q -n $(JOBS) --dist worksteal test
 	NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=$(HOME)/.cache/turning_force/numba-boundscheck \
-		$(PY) -m pytest -q -n $(JOBS) test/core
+		$(PY) -m pytest -q -n $(JOBS) --dist worksteal test/core
 
 # make bench: issue 9's table, old beside new, in one run (about ten minutes), then
 # commissioning on 200 simulated machines beside the oracle's 500-point sweep on each (about
