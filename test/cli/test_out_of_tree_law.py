@@ -75,7 +75,11 @@ def metrics(stdout: str) -> dict[str, float]:
                                                      stdout, re.MULTILINE)}
 
 
-def test_the_relay_runs_compiled_in_the_core_loop_with_its_own_settings(site, fig8):
+# One test for both paths: with the relay installed the kernel's cache folder is a new one,
+# and the first run compiles the whole kernel (about 50 s here); two tests on two workers would
+# each compile it at once.
+def test_the_relay_runs_compiled_in_the_core_loop_and_the_node_graph_with_its_settings(
+        site, fig8, tmp_path):
     run = turning_force(site, 'run', str(fig8), '--core', '--set', SHORT,
                         '--set', 'force_controller.controller=relay')
     assert run.returncode == 0, run.stderr[-3000:]
@@ -95,8 +99,7 @@ def test_the_relay_runs_compiled_in_the_core_loop_with_its_own_settings(site, fi
     assert metrics(held.stdout)['override_changes_per_s'] == 0.0
     assert regulated['override_changes_per_s'] > 0.0
 
-
-def test_the_relay_runs_in_the_node_graph_and_its_settings_are_recorded(site, fig8, tmp_path):
+    # In the node graph: the controller's step compiled for it, and its settings recorded.
     session = tmp_path / 'relay'
     run = turning_force(site, 'run', str(fig8), '--set', SHORT,
                         '--set', 'force_controller.controller=relay',

@@ -222,24 +222,31 @@ def test_a_warm_start_makes_only_the_entry_points_dispatchers():
 def test_an_entry_point_the_cache_misses_compiles_with_its_callees(tmp_path):
     # A cache stamped warm whose machine code for an entry point is not there (CI saw it: two
     # checkouts shared a stamp): activation defers the other functions, so the entry point's
-    # compilation first meets deferred callees; it makes their dispatchers and compiles.
+    # compilation first meets deferred callees; it makes their dispatchers and compiles. The
+    # entry point: the controller's spindle speed, whose callee (law.spindle_speed) sets the
+    # feed rate of the 100 % override, feed per rev x rpm, from the live speed or, where that
+    # is NaN, the parameter (a small entry point: a large one compiles for 20 s here).
     import subprocess
 
     code = '\n'.join([
+        'import numpy as np',
         'from turning_force.core import codecache, kernel',
         'codecache.cache_dir().mkdir(parents=True)',
         '(codecache.cache_dir() / codecache.STAMP).write_text(codecache.source_hash())',
         'kernel.load()',
-        'from turning_force.core.control import ControllerSettings, make_controller',
-        'print(make_controller(ControllerSettings()).update(500.0, 0.0).override_pct)'])
-    from turning_force.core.control import ControllerSettings, make_controller
-
+        'from turning_force.core.control import law',
+        'cp = np.zeros(law.C_LAW)',
+        'cp[law.C_FEED_REV], cp[law.C_RPM_SET] = 0.25, 800.0',
+        'law.set_spindle_speed(cp, 1000.0)',
+        'live = cp[law.C_FEED_RATE]',
+        "law.set_spindle_speed(cp, float('nan'))",
+        'print(type(law.spindle_speed).__name__, live, cp[law.C_FEED_RATE], cp[law.C_RPM])'])
     env = {**os.environ, 'NUMBA_CACHE_DIR': str(tmp_path)}
     run = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                          timeout=600, check=False, env=env)
     assert run.returncode == 0, run.stderr[-2000:]
-    expected = make_controller(ControllerSettings()).update(500.0, 0.0).override_pct
-    assert float(run.stdout.split()[-1]) == expected
+    # compiled (numba's dispatcher, not a deferred stand-in), and right both ways
+    assert run.stdout.split() == ['CPUDispatcher', '250.0', '200.0', '800.0'], run.stdout
 
 
 def test_the_ahead_of_time_module_is_named_for_the_processor_it_was_compiled_for(

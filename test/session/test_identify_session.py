@@ -4,6 +4,8 @@ they write loaded back with ``run --params``."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from pathlib import Path
 
@@ -42,6 +44,19 @@ def cli_json(capfd, argv):
     return json.loads(capfd.readouterr().out)
 
 
+@pytest.fixture(scope='module')
+def identified(commissioning, tmp_path_factory):
+    """``identify`` on the commissioning session for jobs 1-3 mm deep: what it printed (its
+    JSON) and the parameters file it wrote (one identification, about 12 s, for the tests that
+    read it)."""
+    out = tmp_path_factory.mktemp('identified') / 'identified.yaml'
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(['identify', str(commissioning), '--out', str(out), '--json',
+                     '--depths-mm', '1:3']) == 0
+    return json.loads(printed.getvalue()), out
+
+
 def test_the_session_gives_what_identification_reads(commissioning):
     bag = commissioning
     session = read_session(bag)
@@ -58,11 +73,8 @@ def test_the_session_gives_what_identification_reads(commissioning):
     assert np.nanstd(error) < 10.0
 
 
-def test_identify_writes_parameters_that_run_loads(commissioning, capfd, tmp_path):
-    bag = commissioning
-    out = tmp_path / 'identified.yaml'
-    result = cli_json(capfd, ['identify', str(bag), '--out', str(out), '--json',
-                              '--depths-mm', '1:3'])
+def test_identify_writes_parameters_that_run_loads(identified, capfd):
+    result, out = identified
     controller, estimator = result['force_controller'], result['force_estimator']
     # Within the issue's tolerances of the machine simulated.
     assert controller['model_dead_time_s'] == pytest.approx(0.08, abs=0.01)
@@ -148,18 +160,16 @@ def test_a_bad_session_is_one_line_naming_the_bag_and_exit_2(case, capfd, tmp_pa
     assert err.count('\n') == 1
 
 
-def test_identify_refuses_without_the_jobs_depths(commissioning, capfd, tmp_path):
+def test_identify_refuses_without_the_jobs_depths(commissioning, identified, capfd, tmp_path):
     # Issue 15: without the job's depth range identify tuned to the commissioning cut's depth
     # and the job ran at 40.8 N steady against 1.2 N. Now it refuses, and says with what.
     assert main(['identify', str(commissioning)]) == 2
     err = capfd.readouterr().err
     assert "the job's depths of cut are needed: --depths-mm MIN:MAX or --job" in err
     # A job file gives them: fig8 cuts 1-3 mm, as --depths-mm 1:3 does.
-    out_job, out_range = tmp_path / 'job.yaml', tmp_path / 'range.yaml'
+    out_job, out_range = tmp_path / 'job.yaml', identified[1]
     assert main(['identify', str(commissioning), '--job',
                  str(EXPERIMENTS / 'park1998_fig8.yaml'), '--out', str(out_job)]) == 0
-    assert main(['identify', str(commissioning), '--depths-mm', '1:3',
-                 '--out', str(out_range)]) == 0
     # The same identified parameters (the predictions and the law's own settings the
     # verification chose may differ: each is verified on its job; so does the drift monitor's
     # friction as force, taken at each job's programmed feed, and the job's start, which only

@@ -19,6 +19,8 @@ last one without a word.
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -244,6 +246,45 @@ def parameter_sections(data: Any, path: str) -> dict[str, dict[str, Any]]:
     return sections
 
 
+# Settings built from the same parameters, again: the commissioning's verification builds a
+# thousand experiments that differ in the controller's section alone. A settings object is
+# frozen, so one serves them all.
+_BUILT_MAX = 256
+_built: OrderedDict[tuple[Any, ...], Settings] = OrderedDict()
+_built_lock = threading.Lock()
+
+
+def _frozen(value: Any) -> Any:
+    """``value`` as a key: its type with it, at every level (1, 1.0 and True are three
+    values to a settings field: an int field refuses 1.0)."""
+    if isinstance(value, (list, tuple)):
+        return type(value), tuple(_frozen(v) for v in value)
+    if isinstance(value, Mapping):
+        return dict, tuple((k, _frozen(v)) for k, v in value.items())
+    hash(value)   # TypeError where it cannot be a key
+    return type(value), value
+
+
+def _settings(kind: type[Settings], params: Mapping[str, Any]) -> Settings:
+    """``kind.from_params(params)``, built once for the same parameters."""
+    try:
+        key: tuple[Any, ...] | None = (kind, _frozen(params))
+    except TypeError:
+        key = None
+    if key is not None:
+        with _built_lock:
+            if key in _built:
+                _built.move_to_end(key)
+                return _built[key]
+    built = kind.from_params(params)
+    if key is not None:
+        with _built_lock:
+            _built[key] = built
+            if len(_built) > _BUILT_MAX:
+                _built.popitem(last=False)
+    return built
+
+
 def build_experiment(source: str, sections: Mapping[str, Mapping[str, Any]]) -> Experiment:
     """Validated settings from parameter sections (``/**`` shared, then per node)."""
     shared = dict(sections.get(SHARED, {}))
@@ -254,7 +295,7 @@ def build_experiment(source: str, sections: Mapping[str, Mapping[str, Any]]) -> 
         params = {k: v for k, v in shared.items() if k in known}
         unused -= set(params)
         params.update(sections.get(name, {}))
-        built[name] = kind.from_params(params)
+        built[name] = _settings(kind, params)
     if unused:
         names = sorted(str(k) for k in unused)
         raise ConfigError(f'{SHARED}: {names}: no node declares these parameters')

@@ -376,12 +376,19 @@ def verify(job: Experiment, ident: Identification, identified: Sequence[str],
     machines += [plant_sets(ident, cut_depth_mm, per_force, values)
                  for values in drifted_plants(ident)]
     machines = [[*sets, f'lathe_sim.seed={seed + k + 1}'] for k, sets in enumerate(machines)]
+    tuned = _tuned(job, identified, machines[0], monitor)
+    given = {name: () if extra is None else (*identified, *extra)
+             for name, (extra, _) in tuned.items()}
+    laid = {name: (*sets, *monitor) if sets else () for name, sets in given.items()}
+    # the identified plant's cut from the first stage, the drawn plants' now (each plant under
+    # every candidate in turn: one draw of its noise serves them all, kernel/simulate.py)
+    cuts = {name: [nominal] for name, (_, nominal) in tuned.items()}
+    for machine in machines[1:]:
+        for name, sets in laid.items():
+            cuts[name].append(_cut(job, machine, sets))
     predictions = []
-    for name, (extra, nominal) in _tuned(job, identified, machines[0], monitor).items():
-        sets = () if extra is None else (*identified, *extra)
-        # the identified plant's cut from the first stage, the drawn plants' now
-        results = [nominal, *(_cut(job, machine, (*sets, *monitor) if sets else ())
-                              for machine in machines[1:])]
+    for name, sets in given.items():
+        results = cuts[name]
         steady = [r[0] for r in results]
         costs = [cost(s, r) for s, _, r in results]
         in_band = sum(s <= BAND_STEADY_N and r <= BAND_RIPPLE_N for s, _, r in results)

@@ -10,6 +10,7 @@ noise is drawn in advance from the plant's own generator.
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -65,6 +66,28 @@ class SimulationResult:
 # Blocks per call of the kernel: the plant's noise for them is drawn in advance.
 CHUNK_BLOCKS = 4096
 
+# The noise of the last run of one stretch: a function of the plant's settings (its seed among
+# them) and the stretch's length alone, and only read by the kernel. The commissioning's
+# verification runs each plant under a dozen candidates one after the other, and drawing it
+# block by block is a tenth of such a run.
+_noise_lock = threading.Lock()
+Noise = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
+_last_noise: dict[tuple[object, int], Noise] = {}
+
+
+def _noise(plant: LathePlant, settings: object, blocks: int) -> Noise:
+    """``plant.draw_noise(blocks)`` for a run of one stretch (``blocks`` <= CHUNK_BLOCKS),
+    the last run's arrays again where its plant and length were the same."""
+    key = (settings, blocks)
+    with _noise_lock:
+        kept = _last_noise.get(key)
+    if kept is None:
+        kept = plant.draw_noise(blocks)
+        with _noise_lock:
+            _last_noise.clear()
+            _last_noise[key] = kept
+    return kept
+
 
 def simulate(experiment: Experiment) -> SimulationResult:
     """Run an experiment through the core loop; deterministic for a given file and seed."""
@@ -98,7 +121,9 @@ def run_loop(experiment: Experiment, kept: tuple[FloatArray, ...] = ()) -> Simul
     last = np.array([applied, 0.0, 1.0, 0.0, 0.0, 0.0])
     for start in range(0, steps, CHUNK_BLOCKS):
         end = min(start + CHUNK_BLOCKS, steps)
-        noise_u, noise_v, noise_f, noise_fr = plant.draw_noise(end - start)
+        noise_u, noise_v, noise_f, noise_fr = (_noise(plant, experiment.plant, steps)
+                                               if steps <= CHUNK_BLOCKS
+                                               else plant.draw_noise(end - start))
         if not kept:
             applied = jit.run_core(pp, ps, times, depths, noise_u, noise_v, noise_f, noise_fr,
                                    ep, es, cp, cs, clevels, gp, gs, glevels, ctools, gtools,
