@@ -24,10 +24,12 @@ setup: $(STAMPS)/msgs $(STAMPS)/package $(STAMPS)/kernel $(STAMPS)/foxglove-clie
 # 45 s) beside the messages' build and mypy.
 MAKEFLAGS += -j2
 
+# --no-compile: no bytecode for every module of every wheel (half the install's time); Python
+# writes it for the modules a run imports, at their first import.
 $(STAMPS)/venv: requirements/ros.txt requirements/dev.txt
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -r requirements/ros.txt -r requirements/dev.txt
+	$(PY) -m pip install --quiet --no-compile -r requirements/ros.txt -r requirements/dev.txt
 	@if ! command -v cmake >/dev/null; then $(PY) -m pip install --quiet cmake; fi
 	@mkdir -p $(STAMPS) && touch $@
 

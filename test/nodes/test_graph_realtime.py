@@ -7,6 +7,7 @@ import os
 from collections import Counter
 
 import numpy as np
+import rclpy
 from rclpy.parameter import Parameter
 from rosbags.highlevel import AnyReader
 from turning_force_msgs.msg import FeedOverride
@@ -55,8 +56,19 @@ def test_nodes_in_separate_processes(context, executor, spin_until, fig8):
                  start('force_controller', namespace, fig8),
                  start('pmc_bridge', namespace, fig8, '-p', 'armed:=true')]
     try:
+        # The simulator starts once the processes' bridge and estimator are in the graph, and
+        # with a second in air: the feed-follow check (0.3 s in the cut) trips, and holds
+        # until re-armed, where the bridge's overrides reach the simulator only after its
+        # axis has cut at its own override for a while (DDS's discovery of a new reader takes
+        # seconds on a loaded machine; CI saw it).
+        probe = rclpy.create_node('probe', context=context, namespace=namespace.lstrip('/'))
+        executor.add_node(probe)
+        assert spin_until(lambda: probe.count_publishers(f'{namespace}/pmc/feed_override') > 0
+                          and probe.count_subscribers(f'{namespace}/servo/currents') > 0, 60.0)
         sim = LatheSimNode(context=context, namespace=namespace.lstrip('/'),
-                           parameter_overrides=[Parameter('seed', value=3)])
+                           parameter_overrides=[Parameter('seed', value=3),
+                                                Parameter('depth_times_s', value=[0.0, 1.0]),
+                                                Parameter('depth_mm', value=[0.0, 1.0])])
         executor.add_node(sim)
         heard: list[FeedOverride] = []
         sim.create_subscription(FeedOverride, 'pmc/feed_override', heard.append, 10)
