@@ -36,7 +36,9 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def turning_force(site: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ,
+    # numba's dispatchers (TURNING_FORCE_AOT=0): the relay's kernel is not compiled ahead of
+    # time as well (5-15 s more; the module's own tests are test_kernel's).
+    env = {**os.environ, 'TURNING_FORCE_AOT': '0',
            'PYTHONPATH': os.pathsep.join(filter(None, [str(site), os.environ.get('PYTHONPATH')]))}
     return subprocess.run([sys.executable, '-c', PROGRAM, *args], env=env, capture_output=True,
                           text=True, timeout=600, check=False)
