@@ -268,3 +268,18 @@ def test_the_other_yaml_files_are_read_the_same_way(tmp_path, experiments_dir):
     machine.write_text(text + 'name: fanuc_0t_again\n')
     with pytest.raises(ConfigError, match=f"{machine}: not valid YAML: .*duplicate key 'name'"):
         load_machine(machine)
+
+
+def test_settings_of_the_same_parameters_are_built_once_a_value_of_another_type_afresh(fig8):
+    # The commissioning's verification builds a thousand experiments that differ in the
+    # controller's section alone: the other sections' settings (frozen) are built once.
+    base = load_experiment(fig8)
+    a = base.with_sets(['force_controller.oscillation_swings=4'])
+    b = base.with_sets(['force_controller.oscillation_swings=4'])
+    c = base.with_sets(['force_controller.oscillation_swings=5'])
+    assert a.controller is b.controller and a.estimator is b.estimator is c.estimator
+    assert c.controller.oscillation_swings == 5 and a.controller.oscillation_swings == 4
+    # 4, 4.0 and true are equal to Python, not to an int field: the built 4 serves neither.
+    for value, kind in (('4.0', 'float'), ('true', 'bool')):
+        with pytest.raises(ConfigError, match=f'oscillation_swings = .*expected int, got {kind}'):
+            base.with_sets([f'force_controller.oscillation_swings={value}'])

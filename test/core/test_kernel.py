@@ -31,6 +31,23 @@ def test_compiled_runs_are_deterministic():
         np.testing.assert_array_equal(values, second.trace[name], err_msg=name)
 
 
+def test_a_plant_run_again_under_another_law_cuts_through_the_same_noise_as_drawn_afresh():
+    # The last run's noise serves the next run of the same plant (the verification runs each
+    # plant under a dozen candidates in turn): the same numbers as a draw of its own.
+    noisy = load_experiment(FIG8).with_sets(['lathe_sim.force_noise_fraction=0.02',
+                                             'experiment.duration_s=3.0'])
+    other_plant = noisy.with_sets(['lathe_sim.seed=99'])
+    other_law = noisy.with_sets(['force_controller.controller=pi'])
+    simulate(other_plant)
+    simulate(noisy)                       # drawn, and kept
+    reused = simulate(other_law)          # the same plant: its noise taken again
+    simulate(other_plant)                 # another plant: drawn, and kept instead
+    drawn = simulate(other_law)           # drawn afresh
+    for name, values in drawn.trace.items():
+        np.testing.assert_array_equal(values, reused.trace[name], err_msg=name)
+    assert not np.array_equal(drawn.trace['force_n'], simulate(noisy).trace['force_n'])
+
+
 def test_every_compiled_source_keys_the_cache(monkeypatch):
     # numba checks only a function's own file when it reads its cache: the folder's name
     # changes with any source of the core, so that a change never meets old machine code.
