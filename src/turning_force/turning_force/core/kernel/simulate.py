@@ -23,6 +23,7 @@ from turning_force.core.experiment import Experiment
 from turning_force.core.kernel.chain import ControlChain
 from turning_force.core.metrics import compute_metrics
 from turning_force.core.plant.lathe import LathePlant
+from turning_force.core.plant.settings import PlantSettings
 from turning_force.core.pmc.gate import CUT_FIELDS
 
 __all__ = ['SimulationResult', 'simulate']
@@ -70,12 +71,12 @@ CHUNK_BLOCKS = 4096
 # them) and the stretch's length alone, and only read by the kernel. The commissioning's
 # verification runs each plant under a dozen candidates one after the other, and drawing it
 # block by block is a tenth of such a run.
-_noise_lock = threading.Lock()
 Noise = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
-_last_noise: dict[tuple[object, int], Noise] = {}
+_last_noise: dict[tuple[PlantSettings, int], Noise] = {}
+_noise_lock = threading.Lock()
 
 
-def _noise(plant: LathePlant, settings: object, blocks: int) -> Noise:
+def _noise(plant: LathePlant, settings: PlantSettings, blocks: int) -> Noise:
     """``plant.draw_noise(blocks)`` for a run of one stretch (``blocks`` <= CHUNK_BLOCKS),
     the last run's arrays again where its plant and length were the same."""
     key = (settings, blocks)
