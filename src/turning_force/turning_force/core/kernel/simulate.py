@@ -68,18 +68,18 @@ class SimulationResult:
 CHUNK_BLOCKS = 4096
 
 # The noise of the last run of one stretch: a function of the plant's settings (its seed among
-# them) and the stretch's length alone, and only read by the kernel. The commissioning's
-# verification runs each plant under a dozen candidates one after the other, and drawing it
-# block by block is a tenth of such a run.
+# them), its samples per block and the stretch's length alone, and only read by the kernel.
+# The commissioning's verification runs each plant under a dozen candidates one after the
+# other, and drawing it block by block is a tenth of such a run.
 Noise = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
-_last_noise: dict[tuple[PlantSettings, int], Noise] = {}
+_last_noise: dict[tuple[PlantSettings, int, int], Noise] = {}
 _noise_lock = threading.Lock()
 
 
-def _noise(plant: LathePlant, settings: PlantSettings, blocks: int) -> Noise:
+def _noise(plant: LathePlant, blocks: int) -> Noise:
     """``plant.draw_noise(blocks)`` for a run of one stretch (``blocks`` <= CHUNK_BLOCKS),
     the last run's arrays again where its plant and length were the same."""
-    key = (settings, blocks)
+    key = (plant.settings, plant.samples_per_block, blocks)
     with _noise_lock:
         kept = _last_noise.get(key)
     if kept is None:
@@ -122,7 +122,7 @@ def run_loop(experiment: Experiment, kept: tuple[FloatArray, ...] = ()) -> Simul
     last = np.array([applied, 0.0, 1.0, 0.0, 0.0, 0.0])
     for start in range(0, steps, CHUNK_BLOCKS):
         end = min(start + CHUNK_BLOCKS, steps)
-        noise_u, noise_v, noise_f, noise_fr = (_noise(plant, experiment.plant, steps)
+        noise_u, noise_v, noise_f, noise_fr = (_noise(plant, steps)
                                                if steps <= CHUNK_BLOCKS
                                                else plant.draw_noise(end - start))
         if not kept:
