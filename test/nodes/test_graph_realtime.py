@@ -57,10 +57,10 @@ def test_nodes_in_separate_processes(context, executor, spin_until, fig8):
                  start('pmc_bridge', namespace, fig8, '-p', 'armed:=true')]
     try:
         # The simulator starts once the processes' bridge and estimator are in the graph, and
-        # with a second in air: the feed-follow check (0.3 s in the cut) trips, and holds
-        # until re-armed, where the bridge's overrides reach the simulator only after its
-        # axis has cut at its own override for a while (DDS's discovery of a new reader takes
-        # seconds on a loaded machine; CI saw it).
+        # with a second in air. Started at once, it cut at its own override until DDS matched
+        # its reader of the bridge's overrides (seconds on a loaded machine; CI saw it): the
+        # feed-follow check tripped after 0.3 s in the cut and, as it should, held until the
+        # bridge is re-armed.
         probe = rclpy.create_node('probe', context=context, namespace=namespace.lstrip('/'))
         executor.add_node(probe)
         assert spin_until(lambda: probe.count_publishers(f'{namespace}/pmc/feed_override') > 0
