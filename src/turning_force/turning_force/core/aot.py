@@ -40,7 +40,7 @@ import numpy as np
 
 from turning_force.core.codecache import cache_dir
 
-__all__ = ['Checked', 'build', 'cpu_name', 'load', 'module_name', 'path']
+__all__ = ['Checked', 'build', 'cpu_name', 'load', 'module_name', 'path', 'switched_off']
 
 
 def cpu_name() -> str:
@@ -77,12 +77,18 @@ def path() -> Path:
     return cache_dir() / f'{module_name()}{suffix}'
 
 
+def switched_off() -> bool:
+    """Whether ``TURNING_FORCE_AOT=0`` asks for numba's dispatchers: no module is loaded,
+    and none is built."""
+    return os.environ.get('TURNING_FORCE_AOT', '').strip() == '0'
+
+
 def load() -> ModuleType | None:
     """The module compiled ahead of time for today's sources, or None where there is none, it
     does not load (it is built again the next time numba's cache is) or ``TURNING_FORCE_AOT=0``
     asks for numba's dispatchers (to compare the two, or debug numba's side)."""
     where = path()
-    if os.environ.get('TURNING_FORCE_AOT', '').strip() == '0' or not where.is_file():
+    if switched_off() or not where.is_file():
         return None
     name = module_name()
     if name in sys.modules:

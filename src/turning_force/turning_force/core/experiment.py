@@ -19,8 +19,7 @@ last one without a word.
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -249,11 +248,6 @@ def parameter_sections(data: Any, path: str) -> dict[str, dict[str, Any]]:
 # Settings built from the same parameters, again: the commissioning's verification builds a
 # thousand experiments that differ in the controller's section alone. A settings object is
 # frozen, so one serves them all.
-_BUILT_MAX = 256
-_built: OrderedDict[tuple[Any, ...], Settings] = OrderedDict()
-_built_lock = threading.Lock()
-
-
 def _frozen(value: Any) -> Any:
     """``value`` as a key: its type with it, at every level (1, 1.0 and True are three
     values to a settings field: an int field refuses 1.0)."""
@@ -265,24 +259,29 @@ def _frozen(value: Any) -> Any:
     return type(value), value
 
 
-def _settings(kind: type[Settings], params: Mapping[str, Any]) -> Settings:
-    """``kind.from_params(params)``, built once for the same parameters."""
+def _thawed(key: Any) -> Any:
+    """The value :func:`_frozen` made ``key`` of."""
+    kind, value = key
+    if kind is dict:
+        return {k: _thawed(v) for k, v in value}
+    if kind in (list, tuple):
+        return kind(_thawed(v) for v in value)
+    return value
+
+
+@functools.lru_cache(maxsize=256)
+def _built(section: str, key: Any) -> Settings:
+    return {**SETTINGS_OF, **OTHER_SECTIONS}[section].from_params(_thawed(key))
+
+
+def _settings(section: str, params: Mapping[str, Any]) -> Settings:
+    """The settings of ``section`` (SETTINGS_OF, OTHER_SECTIONS) from ``params``, built once
+    for the same parameters."""
     try:
-        key: tuple[Any, ...] | None = (kind, _frozen(params))
+        key = _frozen(params)
     except TypeError:
-        key = None
-    if key is not None:
-        with _built_lock:
-            if key in _built:
-                _built.move_to_end(key)
-                return _built[key]
-    built = kind.from_params(params)
-    if key is not None:
-        with _built_lock:
-            _built[key] = built
-            if len(_built) > _BUILT_MAX:
-                _built.popitem(last=False)
-    return built
+        return {**SETTINGS_OF, **OTHER_SECTIONS}[section].from_params(params)
+    return _built(section, key)
 
 
 def build_experiment(source: str, sections: Mapping[str, Mapping[str, Any]]) -> Experiment:
@@ -295,7 +294,7 @@ def build_experiment(source: str, sections: Mapping[str, Mapping[str, Any]]) -> 
         params = {k: v for k, v in shared.items() if k in known}
         unused -= set(params)
         params.update(sections.get(name, {}))
-        built[name] = _settings(kind, params)
+        built[name] = _settings(name, params)
     if unused:
         names = sorted(str(k) for k in unused)
         raise ConfigError(f'{SHARED}: {names}: no node declares these parameters')

@@ -87,13 +87,10 @@ def prepare() -> None:
 def _build_ahead() -> None:
     """Compile the kernel ahead of time into the cache folder (:mod:`turning_force.core.aot`),
     saying so; where it cannot be, say why (the runs load it just in time)."""
-    import os
-
     from turning_force.core import aot, compiled
 
-    if compiled.mode() != compiled.JUST_IN_TIME or os.environ.get('TURNING_FORCE_AOT',
-                                                                  '').strip() == '0':
-        return   # interpreted, or numba's dispatchers asked for (aot.load)
+    if compiled.mode() != compiled.JUST_IN_TIME or aot.switched_off():
+        return
     print(f'turning_force: compiling the kernel ahead of time into {aot.path()} (once per '
           'install and version: 30 to 90 s)', file=sys.stderr, flush=True)
     start = time.perf_counter()
