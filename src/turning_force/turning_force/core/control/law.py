@@ -126,9 +126,11 @@ CS_O_HALF_LAST, CS_O_HALF_BEFORE, CS_O_MARK, CS_O_MARK_AT, CS_O_STALL = range(38
 # detector watches again, 0 none since the last turn), and the extreme the force reached in
 # the last, where the swing ends at a later turn (NaN: none) (.update._reopen).
 CS_O_ONSET, CS_O_REOPEN, CS_O_FLOOR = 43, 44, 45
-# 1 after a turn the detector took for a wiggle of the noise (.update._turn), until the next.
-CS_O_WIGGLE = 46
-CS_DRIFT = 47   # the drift monitor's state (.drift), drift.STATE values
+# 1 after a turn the detector took for a wiggle of the noise (.update._turn), until the next;
+# 1 where a swing of the detector's count held a spell out of the cut or with the loop open
+# (.update.OSC_SLOW_HALF_S).
+CS_O_WIGGLE, CS_O_SPELLED = 46, 47
+CS_DRIFT = 48   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
@@ -263,9 +265,12 @@ class ControllerBase(Settings):
         'the one before (noise turns faster) and no smaller than 0.7 of it, or with it no '
         'smaller than 0.7 of the two before (a drifting mean makes every other swing small); '
         'the third after a rise and a return at least 0.7 of it (a depth step or an entry: '
-        'its two swings) counts whatever its size; from the fourth on, one no larger than '
+        'its two swings) counts from 0.1 of the return (0.15 after a calm spell); from the '
+        'fourth on, one no larger than '
         'the one two before keeps its pace (within 2.5 of its half-period); a swing out of a '
-        'calm spell (stalled over half its time, or slower than 2 s) only starts a count',
+        'calm spell (stalled over half its time, or slower than 2 s) only starts a count; '
+        'a slow cycle (0.35 s or more a swing) whose last three swings keep within 0.7 of '
+        'each other and their pace raises it a swing early (at three swings at least)',
         '-', low=2, high=100, dynamic=True)
     oscillation_reaction: str = setting(
         'detune', 'What the oscillation alarm does until the run ends or the tool changes: '

@@ -90,6 +90,7 @@ from turning_force.core.control.law import (
     CS_O_PAIRED,
     CS_O_REOPEN,
     CS_O_SINCE,
+    CS_O_SPELLED,
     CS_O_STALL,
     CS_O_SWING,
     CS_O_SWING_BEFORE,
@@ -198,7 +199,41 @@ OSC_REGULAR, OSC_CALM = 2.5, 0.5
 # under it: alarmed at 7.72 s), while a cycle a step set off grew from 0.15 of the return
 # (seed 23's #47: 117 N after 793 N). Held to ONSET_RING there instead (stop 33), three deep
 # jobs whose cycles ring at under 0.3 of the return were alarmed 0.2-0.4 s late.
-ONSET_RING, KICK_RING = 0.3, 0.1
+# ONSET_RING was 0.3 until stop 39: a x3.5 step out of a calm spell on an 87 ms loop
+# (bench_loop_watch seed 6's #16) set off a relay-like cycle of 290 N after a return of 1,290 N,
+# 0.23 of it; held to 0.3 the count started afresh at the cycle's first swing, and the alarm
+# came 2.38 s after the step (at 0.15, 1.9 s). The stable recoveries above ring at 0.06.
+ONSET_RING, KICK_RING = 0.15, 0.1
+# A slow cycle is alarmed a swing early: where the last three swings counted took
+# OSC_SLOW_HALF_S or more each on the mean, kept a cycle's pace (their half-periods within
+# OSC_REGULAR of each other) and did not die away (each at least OSC_DECAY of the one before:
+# after a kick the third at least OSC_DECAY of the return, not KICK_RING), the third raises
+# the alarm. A cycle's fourth swing comes about 4.4 half-periods after its first swing began
+# (four swings, and a turn found once the error is back a third of the swing: 0.39 of a
+# half-period on a sine), and the first swing begins at the onset or after it: over 2 s from
+# a half-period of 0.45 s, and the onset is as a rule a depth step or an entry before the
+# count's first swing. A stable loop's transient does not keep three swings within OSC_DECAY
+# of each other: that is a damping ratio under 0.11, a loop as good as cycling. Not where a
+# swing of the count held a spell out of the cut or with the loop open (CS_O_SPELLED): a
+# cut's exit, the air and the next entry are the program's swings, not the loop's
+# (test_loop_watch's interrupted job, no cycle, was alarmed so at its first entry); nor where
+# the swings keep no pace (a commissioned loop in band, bench_drift seed 16's #2 with its
+# dead-time drift adopted, was alarmed on a settling swing of 81 N over 1.95 s followed by a
+# depth step's rise and return of 238 and 231 N in 0.25 and 0.43 s, and left at 33 N). The
+# cycle's half-period the reaction takes is its last two swings' mean (one of each
+# direction: a relay-like cycle rises and falls at different paces, and three swings weigh
+# one of them twice). Measured (bench_loop_watch, 60 machines): on seeds 3, 5, 6, 7, 8, 9, 15,
+# 23, 31, 43, 61 and 202 (657 oscillating runs), 641 alarmed within 2 s of the onset and 640
+# calmed before; with ONSET_RING at 0.15, 642 and 640; with the early alarm as well (swept
+# before its spell and pace conditions; at 0.35 with them, the same), at OSC_SLOW_HALF_S 0.3,
+# 0.35, 0.4 and 0.45: 647 and 636, 645 and 640, 643 and 641, 643 and 641 (the reaction from a cycle
+# measured for less calms fewer of the slowest long jobs; at 0.3 with the three swings' mean
+# half-period, 647 and 633). On seeds not used to choose it (11, 13, 17, 19, 21, 27, 33, 37,
+# 41, 47, 53, 59: 659 oscillating runs) 643 and 637 before, 644 and 638 now; no alarm in band,
+# nor any more on runs not oscillating. Which marginal runs the reaction calms changes with
+# the alarm's time (on the 24 seeds, 9 calmed that were not and 8 not that were: long jobs
+# on the slowest loops, at 27-55 N).
+OSC_SLOW_HALF_S = 0.35
 # Under the reaction the detector asks whether the reaction's own loop cycles: a swing counts
 # only REACTION_HALF_RATIO times the alarmed cycle's half-period at most (a PI law that
 # cycles does so where the process's phase is between -90 and -180 degrees: above w_u / 4 on
@@ -432,7 +467,9 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     before; the third after a kick at least KICK_RING of the kick's return (after a kick's
     rise out of a calm spell ONSET_RING of it), the fourth at least
     OSC_DECAY of the third; from the fourth on, each no larger than the one two before within
-    OSC_REGULAR of its half-period. Otherwise the count starts afresh, at the swing itself where
+    OSC_REGULAR of its half-period. A slow cycle (OSC_SLOW_HALF_S) whose last three swings
+    keep within OSC_DECAY of each other raises the alarm a swing early. Otherwise the count
+    starts afresh, at the swing itself where
     it counts, or where it is large and came out of a calm spell (OSC_CALM: a kick's rise).
     Under the alarm (the reaction running), no kick, no swing in the first SETTLE_HALVES
     alarmed half-periods, and a swing goes on the count where it and those counted before it
@@ -478,17 +515,29 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
         cs[CS_O_PAIRED] != 0.0 and swing + last >= OSC_DECAY * (last + before))
     cs[CS_O_GREW] = 1.0 if swing >= last else 0.0
     cs[CS_O_PAIRED] = 0.0 if kicked else 1.0
+    early = False
     if counts and cs[CS_O_COUNT] > 0.0 and lasting and chains:
         cs[CS_O_COUNT] += 1.0
         # after an untimed first swing (none summed) this one's half-period twice
         cs[CS_O_HALVES] += half * (2.0 if cs[CS_O_HALVES] == 0.0 else 1.0)
+        # a slow cycle, its last three swings sustained and paced: alarmed a swing early
+        cs[CS_O_SPELLED] = 1.0 if spelled else cs[CS_O_SPELLED]
+        a, b = cs[CS_O_HALF_BEFORE], cs[CS_O_HALF_LAST]
+        slowest, fastest = pymax(pymax(a, b), half), pymin(pymin(a, b), half)
+        early = (watching and cs[CS_O_COUNT] >= 3.0 and cs[CS_O_SPELLED] == 0.0
+                 and cs[CS_O_COUNT] == cp[C_OSC_COUNT] - 1.0
+                 and swing >= OSC_DECAY * last and last >= OSC_DECAY * before
+                 and slowest <= OSC_REGULAR * fastest
+                 and a + b + half >= 3.0 * OSC_SLOW_HALF_S)
     else:
         cs[CS_O_COUNT] = 1.0 if counts or onset else 0.0
         cs[CS_O_ONSET] = 1.0 if onset else 0.0
+        cs[CS_O_SPELLED] = 1.0 if spelled else 0.0
         cs[CS_O_HALVES] = half if counts else 0.0
     # the level sent over the cycle: from the third swing on after a kick (the two before are
-    # the step's, not the loop's), none of a calm spell
-    restart = kicked or cs[CS_O_COUNT] <= 1.0
+    # the step's, not the loop's; where the third raises the alarm, the return's too, or the
+    # level would be half a period's), none of a calm spell
+    restart = (kicked and not early) or cs[CS_O_COUNT] <= 1.0
     timed = not onset
     cs[CS_O_CSUM] = (cs[CS_O_HSUM] if timed else 0.0) + (0.0 if restart else cs[CS_O_CSUM])
     cs[CS_O_CTIME] = (half if timed else 0.0) + (0.0 if restart else cs[CS_O_CTIME])
@@ -496,6 +545,9 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     cs[CS_O_LAST], cs[CS_O_SWING_BEFORE], cs[CS_O_SWING] = extreme, last, swing
     cs[CS_O_HALF_BEFORE], cs[CS_O_HALF_LAST] = cs[CS_O_HALF_LAST], half
     cs[CS_O_SINCE] = 0.0
+    if early:   # the alarm (_watch), at the last two swings' half-period (OSC_SLOW_HALF_S)
+        cs[CS_O_COUNT] = cp[C_OSC_COUNT]
+        cs[CS_O_HALVES] = cp[C_OSC_COUNT] * 0.5 * (cs[CS_O_HALF_BEFORE] + half)
 
 
 @compiled
@@ -574,7 +626,7 @@ def _watch(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> None:
         cs[CS_O_HALF_LAST], cs[CS_O_HALF_BEFORE] = 0.0, 0.0
         cs[CS_O_MARK], cs[CS_O_MARK_AT], cs[CS_O_STALL] = error, 0.0, 0.0
         cs[CS_O_ONSET], cs[CS_O_REOPEN], cs[CS_O_FLOOR] = 0.0, 0.0, math.nan
-        cs[CS_O_WIGGLE] = 0.0
+        cs[CS_O_WIGGLE], cs[CS_O_SPELLED] = 0.0, 0.0
         return
     if cs[CS_O_REOPEN] == 1.0:
         _reopen(cs, error, rate)
