@@ -265,7 +265,7 @@ class ControllerBase(Settings):
         'the one before (noise turns faster) and no smaller than 0.7 of it, or with it no '
         'smaller than 0.7 of the two before (a drifting mean makes every other swing small); '
         'the third after a rise and a return at least 0.7 of it (a depth step or an entry: '
-        'its two swings) counts from 0.1 of the return (0.15 after a calm spell); from the '
+        'its two swings) counts from 0.1 of the return (0.3 after a calm spell); from the '
         'fourth on, one no larger than '
         'the one two before keeps its pace (within 2.5 of its half-period); a swing out of a '
         'calm spell (stalled over half its time, or slower than 2 s) only starts a count; '
