@@ -591,7 +591,7 @@ def test_a_commissioned_loop_s_ring_after_a_step_out_of_a_calm_spell_is_no_cycle
     # and the reaction left the run at 16.6 N.
     extremes = [(0.0, 10.0), (8.4, 10.0), (8.68, 569.0), (9.01, -59.0), (9.23, 129.0),
                 (9.98, -7.0), (10.3, 12.0), (11.5, 12.0)]
-    assert 188.0 / 628.0 < ONSET_RING and OSC_DECAY * 188.0 <= 136.0
+    assert ONSET_RING > 188.0 / 628.0 and OSC_DECAY * 188.0 <= 136.0
     assert OSC_REGULAR * 0.33 >= 0.75   # the fourth keeps the return's pace
     alarm_s, _ = played(extremes)
     assert alarm_s is None

@@ -233,9 +233,9 @@ ONSET_RING, KICK_RING = 0.3, 0.1
 # reaction from a cycle measured for less calms fewer of the slowest long jobs; at 0.3 with
 # the three swings' mean half-period, 647 and 633). On seeds not used to choose it (11, 13,
 # 17, 19, 21, 27, 33, 37, 41, 47, 53, 59: 659 oscillating runs) 643 and 637 before, 644 and
-# 638 now; no alarm in band, nor any more on runs not oscillating. Which marginal runs the reaction calms changes with
-# the alarm's time (on the 24 seeds, 9 calmed that were not and 8 not that were: long jobs
-# on the slowest loops, at 27-55 N).
+# 638 now; no alarm in band, nor any more on runs not oscillating. Which marginal runs the
+# reaction calms changes with the alarm's time (on the 24 seeds, 9 calmed that were not and 8
+# not that were: long jobs on the slowest loops, at 27-55 N).
 OSC_SLOW_HALF_S = 0.35
 # Under the reaction the detector asks whether the reaction's own loop cycles: a swing counts
 # only REACTION_HALF_RATIO times the alarmed cycle's half-period at most (a PI law that
