@@ -471,8 +471,9 @@ def _turn(cp: np.ndarray, cs: np.ndarray, extreme: float) -> None:
     rise out of a calm spell ONSET_RING of it), the fourth at least
     OSC_DECAY of the third; from the fourth on, each no larger than the one two before within
     OSC_REGULAR of its half-period. A slow cycle (OSC_SLOW_HALF_S) whose last three swings
-    keep within OSC_DECAY of each other raises the alarm a swing early. Otherwise the count
-    starts afresh, at the swing itself where
+    keep their size (each at least OSC_DECAY of the one before) and their pace, none of them
+    through a spell out of the cut or with the loop open, raises the alarm a swing early.
+    Otherwise the count starts afresh, at the swing itself where
     it counts, or where it is large and came out of a calm spell (OSC_CALM: a kick's rise).
     Under the alarm (the reaction running), no kick, no swing in the first SETTLE_HALVES
     alarmed half-periods, and a swing goes on the count where it and those counted before it
