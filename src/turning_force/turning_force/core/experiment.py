@@ -169,6 +169,7 @@ OTHER_SECTIONS: Mapping[str, type[Settings]] = {
     'session_recorder': RecorderSettings,
     'live_view': ViewSettings,
 }
+_SECTIONS: Mapping[str, type[Settings]] = {**SETTINGS_OF, **OTHER_SECTIONS}
 
 
 def check_node(node: str, unknown: str) -> None:
@@ -271,7 +272,7 @@ def _thawed(key: Any) -> Any:
 
 @functools.lru_cache(maxsize=256)
 def _built(section: str, key: Any) -> Settings:
-    return {**SETTINGS_OF, **OTHER_SECTIONS}[section].from_params(_thawed(key))
+    return _SECTIONS[section].from_params(_thawed(key))
 
 
 def _settings(section: str, params: Mapping[str, Any]) -> Settings:
@@ -280,7 +281,7 @@ def _settings(section: str, params: Mapping[str, Any]) -> Settings:
     try:
         key = _frozen(params)
     except TypeError:
-        return {**SETTINGS_OF, **OTHER_SECTIONS}[section].from_params(params)
+        return _SECTIONS[section].from_params(params)
     return _built(section, key)
 
 
@@ -289,7 +290,7 @@ def build_experiment(source: str, sections: Mapping[str, Mapping[str, Any]]) -> 
     shared = dict(sections.get(SHARED, {}))
     unused = set(shared)
     built: dict[str, Settings] = {}
-    for name, kind in {**SETTINGS_OF, **OTHER_SECTIONS}.items():
+    for name, kind in _SECTIONS.items():
         known = kind.fields()
         params = {k: v for k, v in shared.items() if k in known}
         unused -= set(params)
