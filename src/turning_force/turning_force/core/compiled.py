@@ -27,6 +27,7 @@ import os
 import sys
 import threading
 import time
+import types
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar, cast
@@ -41,6 +42,7 @@ __all__ = ['AHEAD', 'INTERPRETED', 'JUST_IN_TIME', 'Arr', 'activate', 'active', 
            'pymin', 'pymod', 'quantise', 'requeue']
 
 _F = TypeVar('_F', bound=Callable[..., Any])
+_T = TypeVar('_T')
 Arr = np.ndarray   # float64, C-contiguous: what the entry points' signatures say
 
 # What is decorated before activate(): each function with its entry signature ('' if none).
@@ -148,7 +150,29 @@ def build_ahead() -> Path | None:
         if _mode != JUST_IN_TIME:
             raise RuntimeError(f'the kernel is loaded {_mode or "nowhere"}, not just in time')
         _materialize()
-        return aot.build(list(_entries))
+        return in_one_chunk(lambda: aot.build(list(_entries)))
+
+
+def _roomy(call: Callable[[], _T]) -> _T:
+    return call()
+
+
+# CPython 3.11 and 3.12 keep the frames' data in 16 KiB chunks, each mapped when a call
+# crosses into it and unmapped when the call returns (gh-142183, fixed in 3.13 and 3.14 in
+# 2026). numba's compiler recurses back and forth over such a boundary: compiling the kernel
+# from the command line (its depth there) mapped and unmapped a chunk 1.2 million times,
+# 8 s of the system's time in 44 s. A frame of ROOMY_SLOTS local slots (528 kB) is given a
+# chunk of 1 MiB, and what it calls runs in the half that it leaves free.
+ROOMY_SLOTS = 66_000
+_in_chunk = cast(Callable[[Callable[[], Any]], Any], types.FunctionType(_roomy.__code__.replace(
+    co_varnames=(*_roomy.__code__.co_varnames, *(f'_{i}' for i in range(ROOMY_SLOTS))),
+    co_nlocals=_roomy.__code__.co_nlocals + ROOMY_SLOTS), globals()))
+
+
+def in_one_chunk(call: Callable[[], _T]) -> _T:
+    """``call()``, its frames and those of all it calls in one chunk of Python's frame stack
+    (see ROOMY_SLOTS): what compiles numba's machine code runs through this."""
+    return cast(_T, _in_chunk(call))
 
 
 def _jit_disabled() -> bool:
@@ -220,17 +244,20 @@ class _Entry:
         misses, numba compiles it, and the functions it calls need their dispatchers)."""
         with _lock:
             if self._dispatcher is None or self._call is not self._dispatcher:
-                self._dispatcher = _dispatcher(self.py_func)
-                try:
-                    self._dispatcher.compile(self._signature)
-                except Exception:
-                    if not _materialize():
-                        raise
-                    # numba keeps a failed compilation's error: a fresh dispatcher tries again.
-                    self._dispatcher = _dispatcher(self.py_func)
-                    self._dispatcher.compile(self._signature)
-                self._dispatcher.disable_compile()
+                in_one_chunk(self._compile)
                 self._call = self._dispatcher
+
+    def _compile(self) -> None:
+        self._dispatcher = _dispatcher(self.py_func)
+        try:
+            self._dispatcher.compile(self._signature)
+        except Exception:
+            if not _materialize():
+                raise
+            # numba keeps a failed compilation's error: a fresh dispatcher tries again.
+            self._dispatcher = _dispatcher(self.py_func)
+            self._dispatcher.compile(self._signature)
+        self._dispatcher.disable_compile()
 
     def _first(self, *args: Any) -> Any:
         self.load()
