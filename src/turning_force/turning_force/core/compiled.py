@@ -38,8 +38,8 @@ from turning_force.core import aot
 from turning_force.core.codecache import cache_dir, cache_is_warm, installed_laws
 
 __all__ = ['AHEAD', 'INTERPRETED', 'JUST_IN_TIME', 'Arr', 'activate', 'active', 'build_ahead',
-           'compiled', 'delayed', 'entry', 'isclose', 'mode', 'npsign', 'pairwise_sum', 'pymax',
-           'pymin', 'pymod', 'quantise', 'requeue']
+           'compiled', 'delayed', 'entry', 'in_one_chunk', 'isclose', 'mode', 'npsign',
+           'pairwise_sum', 'pymax', 'pymin', 'pymod', 'quantise', 'requeue']
 
 _F = TypeVar('_F', bound=Callable[..., Any])
 _T = TypeVar('_T')
@@ -159,10 +159,11 @@ def _roomy(call: Callable[[], _T]) -> _T:
 
 # CPython 3.11 and 3.12 keep the frames' data in 16 KiB chunks, each mapped when a call
 # crosses into it and unmapped when the call returns (gh-142183, fixed in 3.13 and 3.14 in
-# 2026). numba's compiler recurses back and forth over such a boundary: compiling the kernel
-# from the command line (its depth there) mapped and unmapped a chunk 1.2 million times,
-# 8 s of the system's time in 44 s. A frame of ROOMY_SLOTS local slots (528 kB) is given a
-# chunk of 1 MiB, and what it calls runs in the half that it leaves free.
+# 2026). numba's compiler recurses back and forth over such a boundary where the stack's
+# depth happens to put one: compiling the kernel under `turning-force run` mapped and unmapped
+# a chunk 1.2 million times, 8 s of the system's time in 44 s (36 s in one chunk). A frame of
+# ROOMY_SLOTS local slots (528 kB) is given a chunk of 1 MiB of its own, and what it calls
+# runs in the half that it leaves free (test_compiled.py).
 ROOMY_SLOTS = 66_000
 _in_chunk = cast(Callable[[Callable[[], Any]], Any], types.FunctionType(_roomy.__code__.replace(
     co_varnames=(*_roomy.__code__.co_varnames, *(f'_{i}' for i in range(ROOMY_SLOTS))),
