@@ -130,7 +130,11 @@ CS_O_ONSET, CS_O_REOPEN, CS_O_FLOOR = 43, 44, 45
 # 1 where a swing of the detector's count held a spell out of the cut or with the loop open
 # (.update.OSC_SLOW_HALF_S).
 CS_O_WIGGLE, CS_O_SPELLED = 46, 47
-CS_DRIFT = 48   # the drift monitor's state (.drift), drift.STATE values
+# The axis feed the DAQ measured over the last block, a share of the 100 % override's feed
+# (NaN: none measured), the level the loop applied over about the last second (the
+# detector's test of a spell's cause: .update.EXIT_FEED_SHARE).
+CS_O_FEED, CS_O_LEVEL = 48, 49
+CS_DRIFT = 50   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
