@@ -180,7 +180,8 @@ class Controller:
     def feed(self, feed_mm_min: float) -> None:
         """The axis feed the DAQ measured over the block the next update answers, its mean
         [mm/min] (ForceEstimate's; NaN: none): the drift monitor's feed test
-        (:func:`.drift.drift_feed`)."""
+        (:func:`.drift.drift_feed`) and the oscillation detector's test of the tool's exits
+        (:data:`.update.EXIT_FEED_SHARE`)."""
         update.control_feed(self._params, self._state, float(feed_mm_min))
 
     def friction_correction(self) -> float:

@@ -997,8 +997,9 @@ def controller_tool(tools: np.ndarray, cp: np.ndarray, cs: np.ndarray, number: f
 @compiled
 def controller_feed(cp: np.ndarray, cs: np.ndarray, feed_mm_min: float) -> None:
     """The axis feed the DAQ measured over the block the coming update answers, its mean
-    [mm/min]: the drift monitor's feed test (:func:`.drift.drift_feed`), against the 100 %
-    override's feed rate at the spindle speed in use (``spindle_speed`` first)."""
+    [mm/min]: the drift monitor's feed test (:func:`.drift.drift_feed`) and the oscillation
+    detector's test of the tool's exits (EXIT_FEED_SHARE), against the 100 % override's feed
+    rate at the spindle speed in use (``spindle_speed`` first)."""
     drift_feed(cs[CS_DRIFT:CS_LAW], feed_mm_min, cp[C_FEED_RATE], cp[C_PERIOD])
     # the oscillation detector's, whatever the drift monitor takes (_left_cut)
     cs[CS_O_FEED] = feed_mm_min / cp[C_FEED_RATE] if cp[C_FEED_RATE] > 0.0 else math.nan
