@@ -39,6 +39,10 @@ from turning_force.core.control.update import (
     OSC_HALF_MIN_S,
     OSC_REGULAR,
     OSC_SLOW_HALF_S,
+    REASON_AIR_CUT,
+    REASON_FEED_FLOOR,
+    REASON_NORMAL,
+    REASON_RISE_LIMIT,
     RECYCLE_RATIO,
     RISE_HALVES,
     RISE_KEEP,
@@ -285,6 +289,10 @@ def test_the_reaction_holds_across_an_interrupted_cut():
     # second, the swing that held the entry feed took 2.8 times the one before of its
     # direction, the gate's time, and failed the cycle's pace
     (3, 44), (202, 52),
+    # a cycle whose troughs leave the cut behind 122 ms (an underdamped servo): each fall
+    # spends 0.45 s in air and on the entry feed, which read as the loop's time broke the
+    # cycle's pace; alarmed 2.34 s after the onset on the fourth swing
+    (71, 18),
 ], ids=['trough out of the cut', 'interrupted, trough out of the cut', 'deep step',
         'steps', 'long job, 141 ms', 'long job, 130 ms',
         'slowest, 128 ms', 'slow growing cycle',
@@ -292,7 +300,7 @@ def test_the_reaction_holds_across_an_interrupted_cut():
         'drifting mean', 'long job, g 0.61', 'long job, g 0.78', 'long job, g 0.93',
         'kick with a smaller return', 'slow return under the reaction', 'long job, quickened',
         'cycle out of a calm spell', 'cycle through the entry feed',
-        'entry feed, paced by the gate'])
+        'entry feed, paced by the gate', 'troughs in air, paced without them'])
 def test_generated_machines_are_alarmed_in_time_and_calmed(seed, index):
     # Machines of the generated population (commands/population.py) of the classes the
     # detector once missed or the reaction once left cycling, judged as the issue does: the
@@ -350,6 +358,12 @@ def test_a_grooved_shaft_s_exits_and_entries_are_no_cycle():
     whole = run(*sets, *grooves(10.0, 0.0, 1))
     assert whole.metrics['steady_mean_abs_error_n'] <= 5.0
     assert whole.metrics['oscillation_alarms'] == 0.0
+
+
+def test_the_detector_reads_the_pmc_s_reasons():
+    # Compiled code compares the reason the PMC gave with numbers: they are FeedOverride's.
+    assert (REASON_NORMAL, REASON_AIR_CUT, REASON_RISE_LIMIT, REASON_FEED_FLOOR) == (
+        Reason.NORMAL, Reason.AIR_CUT, Reason.RISE_LIMIT, Reason.FEED_FLOOR)
 
 
 def test_no_alarm_while_the_loop_is_open():

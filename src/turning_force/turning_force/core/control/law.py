@@ -127,14 +127,19 @@ CS_O_HALF_LAST, CS_O_HALF_BEFORE, CS_O_MARK, CS_O_MARK_AT, CS_O_STALL = range(38
 # the last, where the swing ends at a later turn (NaN: none) (.update._reopen).
 CS_O_ONSET, CS_O_REOPEN, CS_O_FLOOR = 43, 44, 45
 # 1 after a turn the detector took for a wiggle of the noise (.update._turn), until the next;
-# 1 where a swing of the detector's count held a spell out of the cut or with the loop open
-# (.update.OSC_SLOW_HALF_S).
+# 1 where a swing of the detector's count held a spell with the loop open for another reason
+# than the gate's air-cut and entry feeds (.update.OSC_SLOW_HALF_S).
 CS_O_WIGGLE, CS_O_SPELLED = 46, 47
 # The axis feed the DAQ measured over the last block, a share of the 100 % override's feed
 # (NaN: none measured), the level the loop applied over about the last second (the
 # detector's test of a spell's cause: .update.EXIT_FEED_SHARE).
 CS_O_FEED, CS_O_LEVEL = 48, 49
-CS_DRIFT = 50   # the drift monitor's state (.drift), drift.STATE values
+# the time the swing under way spent in spells (the gate's air-cut and entry feeds, or the
+# loop open), 1 where one of them had the loop open by another reason (the dial, a hold, a
+# stand-down), and the last two swings' half-periods without their spells' time
+# (.update.OSC_SLOW_HALF_S).
+CS_O_SPELL_S, CS_O_OPENED, CS_O_NET_LAST, CS_O_NET_BEFORE = 50, 51, 52, 53
+CS_DRIFT = 54   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
