@@ -57,17 +57,18 @@ def test_nodes_in_separate_processes(context, executor, spin_until, fig8):
                  start('pmc_bridge', namespace, fig8, '-p', 'armed:=true')]
     try:
         # The simulator starts once the processes' bridge and estimator are in the graph, and
-        # with a second in air. Started at once, it cut at its own override until DDS matched
-        # its reader of the bridge's overrides (seconds on a loaded machine; CI saw it): the
-        # feed-follow check tripped after 0.3 s in the cut and, as it should, held until the
-        # bridge is re-armed.
+        # with three seconds in air. Started at once, it cut at its own override until DDS
+        # matched its reader of the bridge's overrides (seconds on a loaded machine; CI saw
+        # it): the feed-follow check tripped after 0.3 s in the cut and, as it should, held
+        # until the bridge is re-armed. With one second in air a fresh clone's make test (three
+        # workers on two cores) saw it too: 81 answers regulated, then the trip.
         probe = rclpy.create_node('probe', context=context, namespace=namespace.lstrip('/'))
         executor.add_node(probe)
         assert spin_until(lambda: probe.count_publishers(f'{namespace}/pmc/feed_override') > 0
                           and probe.count_subscribers(f'{namespace}/servo/currents') > 0, 60.0)
         sim = LatheSimNode(context=context, namespace=namespace.lstrip('/'),
                            parameter_overrides=[Parameter('seed', value=3),
-                                                Parameter('depth_times_s', value=[0.0, 1.0]),
+                                                Parameter('depth_times_s', value=[0.0, 3.0]),
                                                 Parameter('depth_mm', value=[0.0, 1.0])])
         executor.add_node(sim)
         heard: list[FeedOverride] = []
