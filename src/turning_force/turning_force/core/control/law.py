@@ -134,7 +134,7 @@ CS_O_WIGGLE, CS_O_SPELLED = 46, 47
 # (NaN: none measured), the level the loop applied over about the last second (the
 # detector's test of a spell's cause: .update.EXIT_FEED_SHARE).
 CS_O_FEED, CS_O_LEVEL = 48, 49
-# the time the swing under way spent in spells (the gate's air-cut and entry feeds, or the
+# The time the swing under way spent in spells (the gate's air-cut and entry feeds, or the
 # loop open), 1 where one of them had the loop open by another reason (the dial, a hold, a
 # stand-down), and the last two swings' half-periods without their spells' time
 # (.update.OSC_SLOW_HALF_S).
