@@ -87,7 +87,7 @@ lint: $(STAMPS)/msgs $(STAMPS)/package
 	$(VENV)/bin/mypy
 	$(VENV)/bin/lint-imports --no-cache
 
-# make test: every test but the slow ones (4.4-4.6 minutes on 2 cores, set-up included);
+# make test: every test but the slow ones (4.4-4.7 minutes on 2 cores, set-up included);
 # make test-all: all of them (the colcon workspace, every row of the robustness matrix).
 # pytest-xdist spreads them over JOBS processes, each on a DDS domain of its own. Three on two
 # cores: a sixth of the suite's time its tests wait on the wall clock (graphs that run in real
