@@ -360,6 +360,62 @@ def test_a_grooved_shaft_s_exits_and_entries_are_no_cycle():
     assert whole.metrics['oscillation_alarms'] == 0.0
 
 
+def falling(law: str, floor_share: float, tau_c_s: float = 0.15) -> tuple[float, list[float]]:
+    """Fig. 8's ``law`` (its model's tau_c ``tau_c_s``) held 2 s at the reference with the
+    axis measured at 60 %, then 0.4 s of the force falling as the process lag does toward
+    ``floor_share`` of the reference, the axis still at 60 % (the PMC applies each request):
+    the last request before the fall, and the requests during it."""
+    settings = replace(load_experiment(FIG8).controller, controller=law,
+                       quantiser='error_feedback', model_cutting_time_constant_s=tau_c_s)
+    controller = make_controller(settings)
+    ref, period = settings.reference_force_n, settings.control_period_s
+    requests = []
+    for k in range(240):
+        t = max(k * period - 2.0, 0.0)
+        force = ref * (floor_share + (1.0 - floor_share) * np.exp(-t / tau_c_s))
+        rate = -(force - floor_share * ref) / tau_c_s if t > 0.0 else 0.0
+        controller.feed(0.6 * settings.programmed_feed_rate_mm_min)
+        request = controller.update(force, rate).override_pct
+        controller.applied(request, True, int(Reason.NORMAL))
+        requests.append(request)
+    return requests[200], requests[201:]
+
+
+@pytest.mark.parametrize('law', ['smc', 'mpc', 'pi'])
+def test_a_fall_toward_the_air_is_held_at_the_loop_s_level_and_a_smaller_depth_is_not(law):
+    # A groove the gate does not see: the force at 500 N falls toward 0 behind a 0.15 s
+    # process lag and would reach exit_force_n (50 N) only 0.35 s later. Before, every law
+    # raised the feed through the fall (to 150 % for the SMC and the predictive law, 120 % for
+    # PI) and met the work again wound up. The model's tau_c says where the force heads
+    # (F + tau_c dF/dt: 0 here), the axis still feeds as before: the tool's exit. Until that
+    # is sure (FALL_SURE_S) the request does not rise; then it holds the level the axis fed
+    # at while the force was at the reference (60 %, each law's own request aside).
+    before, held = falling(law, 0.0)
+    assert max(held) <= before
+    assert np.mean(held[5:]) == pytest.approx(60.0, abs=1.0)
+    # A smaller depth heads for 40 % of the reference: no exit, and the law raises the feed
+    # as it did before.
+    before, raised = falling(law, 0.4)
+    assert max(raised) >= before + 20.0
+
+
+def test_a_groove_the_gate_does_not_see_is_entered_at_the_level_before_it():
+    # 0.75 s of cut and 0.25 s of air, eight times, behind a 0.15 s process lag: the force
+    # falls from 500 N to 95 N in the air, never under exit_force_n, and the gate holds no
+    # air-cut feed. The predictive law on the true model raised the feed to 150 % in each
+    # gap, entered 294 N over the reference, and was alarmed as a cycle. Held at its level
+    # through the gap (the test above), it enters 30 N over, and nothing is alarmed.
+    sets = (PRODUCT_QUANTISER, PRODUCT_ENTRY, 'force_controller.controller=mpc',
+            'lathe_sim.cutting_time_constant_s=0.15',
+            'force_controller.model_cutting_time_constant_s=0.15',
+            'force_estimator.model_cutting_time_constant_s=0.15')
+    result = run(*sets, *grooves(1.0, 0.25, 8))
+    trace = result.trace
+    assert not np.any((trace['override_reason'] == Reason.AIR_CUT) & (trace['t_s'] > 0.9))
+    assert result.metrics['entry_overshoot_n'] <= 100.0
+    assert result.metrics['oscillation_alarms'] == 0.0
+
+
 def test_the_detector_reads_the_pmc_s_reasons():
     # Compiled code compares the reason the PMC gave with numbers: they are FeedOverride's.
     assert (REASON_NORMAL, REASON_AIR_CUT, REASON_RISE_LIMIT, REASON_FEED_FLOOR) == (

@@ -36,6 +36,7 @@ from turning_force.core.control.law import (
     C_REF,
     C_RPM,
     C_RPM_SET,
+    C_TAU_C,
     C_UNREACH,
     CS_DRIFT,
     CS_HELD,
@@ -271,6 +272,7 @@ def _params(c: ControllerSettings, table: OverrideTable) -> tuple[FloatArray, in
     p[C_RPM_SET] = p[C_RPM] = c.spindle_speed_rpm
     p[C_EXPONENT] = c.model_cutting_exponent
     p[C_MODEL_HALF] = model_half_period_s(c)
+    p[C_TAU_C] = c.model_cutting_time_constant_s
     p[C_DRIFT:C_LAW] = drift.drift_fill(c)
     p[C_LAW:] = own
     return p, size

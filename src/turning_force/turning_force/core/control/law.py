@@ -79,7 +79,10 @@ C_EXPONENT = 16
 # pi / w_u with its phase -180 degrees at w_u, 0 where it never gets there: the oscillation
 # reaction's least half-period (.update._alarm; :func:`model_half_period_s`).
 C_MODEL_HALF = 17
-C_DRIFT = 18   # the drift monitor's parameters (.drift), drift.PARAMS of them
+# The process lag tau_c the laws assume (model_cutting_time_constant_s): where a fall of the
+# force heads (.update._fall).
+C_TAU_C = 18
+C_DRIFT = 19   # the drift monitor's parameters (.drift), drift.PARAMS of them
 C_LAW = C_DRIFT + drift.PARAMS
 # State every law has (cs): the request held, the quantiser's carry, the time pinned at an end
 # of the table and which end, the resets; whether the tool is in the cut (the last override
@@ -139,7 +142,15 @@ CS_O_FEED, CS_O_LEVEL = 48, 49
 # stand-down), and the last two swings' half-periods without their spells' time
 # (.update.OSC_SLOW_HALF_S).
 CS_O_SPELL_S, CS_O_OPENED, CS_O_NET_LAST, CS_O_NET_BEFORE = 50, 51, 52, 53
-CS_DRIFT = 54   # the drift monitor's state (.drift), drift.STATE values
+# The hold through the tool's exit where the gate has not seen it yet (.update._fall): 1 while
+# it holds, the level it holds, the axis feed's mean while the force was at the reference (a
+# level [%]; 0: not since the tool entered the cut), how long it has held (before: how long
+# the fall has looked like the exit), how long the force has been calm in it, the entry feed
+# the gate applied last (0: none yet), and the axis feed's recent mean (a share of the 100 %
+# feed).
+CS_FALL, CS_FALL_CAP, CS_FALL_BASE, CS_FALL_S, CS_FALL_CALM, CS_FALL_ENTRY, CS_FALL_FEED = \
+    range(54, 61)
+CS_DRIFT = 61   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
@@ -256,8 +267,11 @@ class ControllerBase(Settings):
     model_dead_time_s: float = setting(0.0, 'PMC dead time the predictor assumes (Kim: 0.08 s '
                                        'on a FANUC); from `turning-force identify`', 's', low=0.0,
                                        high=2.0, cite='Kim, Eqs. 1-2')
-    model_cutting_time_constant_s: float = setting(0.05, 'Process time constant tau_c the SMC '
-                                                   'assumes (Park Eq. 1)', 's', low=0.0,
+    model_cutting_time_constant_s: float = setting(0.05, 'Process time constant tau_c the laws '
+                                                   'assume (Park Eq. 1): the models of the SMC '
+                                                   'and the predictive law, and where a fall '
+                                                   'of the force heads (the hold through an '
+                                                   'exit the gate has not seen)', 's', low=0.0,
                                                    low_open=True, high=10.0,
                                                    cite='Park 1998, Eq. 1')
     model_cutting_exponent: float = setting(1.0, 'Feed exponent g of the force the laws assume, '
