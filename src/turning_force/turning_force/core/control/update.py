@@ -505,6 +505,13 @@ law_adopt = _laws.adopt
 
 
 @compiled
+def _mean(mean: float, value: float, cp: np.ndarray, time_s: float) -> float:
+    """``mean`` one control period further toward ``value``: a first-order mean over
+    ``time_s``."""
+    return mean + (value - mean) * pymin(cp[C_PERIOD] / time_s, 1.0)
+
+
+@compiled
 def _track_reach(cp: np.ndarray, cs: np.ndarray, request: float, error: float) -> float:
     """1.0 while the reference can be reached, else 0.0 (:class:`..control.Controller`). The
     force reaches the reference when the error's mean over :data:`REACH_MEAN_S` does, not a
@@ -518,7 +525,7 @@ def _track_reach(cp: np.ndarray, cs: np.ndarray, request: float, error: float) -
         side = -1
     pinned_side = int(cs[CS_SIDE])
     if pinned_side != 0:
-        cs[CS_PIN_ERROR] += (error - cs[CS_PIN_ERROR]) * pymin(cp[C_PERIOD] / REACH_MEAN_S, 1.0)
+        cs[CS_PIN_ERROR] = _mean(cs[CS_PIN_ERROR], error, cp, REACH_MEAN_S)
     if side != 0 and side == pinned_side:
         cs[CS_PINNED] += cp[C_PERIOD]
     elif side != 0:
@@ -939,6 +946,7 @@ def _fall(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, error: float, rate
     yet (FALL_RATE_PER_S's text): FALL_HELD, FALL_PENDING while the fall is not yet sure
     (the request is not to rise meanwhile), or FALL_NONE; never where not ``allowed``."""
     ref = cp[C_REF]
+    heading = error + ref + cp[C_TAU_C] * rate   # where the force goes (FALL_RATE_PER_S)
     if cs[CS_ENGAGED] == 0.0:
         cs[CS_FALL], cs[CS_FALL_BASE], cs[CS_FALL_S] = 0.0, 0.0, 0.0
         return FALL_NONE
@@ -950,10 +958,10 @@ def _fall(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, error: float, rate
         if abs(error) <= FALL_NEAR_SHARE * ref and abs(rate) <= FALL_CALM_RATE_PER_S * ref \
                 and feed > 0.0:
             base, level = cs[CS_FALL_BASE], 100.0 * feed
-            cs[CS_FALL_BASE] = level if base <= 0.0 else base + (level - base) * pymin(
-                cp[C_PERIOD] / FALL_BASE_MEAN_S, 1.0)
+            cs[CS_FALL_BASE] = level if base <= 0.0 else _mean(base, level, cp,
+                                                               FALL_BASE_MEAN_S)
         if not (error < 0.0 and rate < -FALL_RATE_PER_S * ref
-                and error + ref + cp[C_TAU_C] * rate < FALL_HEADING_SHARE * ref
+                and heading < FALL_HEADING_SHARE * ref
                 and feed >= FALL_FEED_SHARE * cs[CS_FALL_FEED]
                 and feed >= EXIT_FEED_SHARE * cs[CS_O_LEVEL] and feed > 0.0):
             cs[CS_FALL_S] = 0.0
@@ -971,8 +979,7 @@ def _fall(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, error: float, rate
     cs[CS_FALL_S] += cp[C_PERIOD]
     # the force heads for a level in the cut (a smaller depth, not the exit; or the tool
     # back in after a groove), and no longer rises fast
-    calm = error + ref + cp[C_TAU_C] * rate >= FALL_STAYS_SHARE * ref \
-        and rate <= FALL_CALM_RATE_PER_S * ref
+    calm = heading >= FALL_STAYS_SHARE * ref and rate <= FALL_CALM_RATE_PER_S * ref
     cs[CS_FALL_CALM] = cs[CS_FALL_CALM] + cp[C_PERIOD] if calm else 0.0
     if error >= 0.0 or cs[CS_FALL_CALM] >= FALL_CALM_S - 1e-9 \
             or cs[CS_FALL_S] >= FALL_HOLD_MAX_S - 1e-9:
@@ -1083,8 +1090,7 @@ def controller_applied(cp: np.ndarray, cs: np.ndarray, applied: float, engaged: 
     if reason not in (REASON_NORMAL, REASON_RISE_LIMIT, REASON_FEED_FLOOR, REASON_AIR_CUT):
         cs[CS_O_OPENED] = 1.0
     if engaged and cs[CS_O_OPEN] == 0.0 and math.isfinite(applied):   # the loop's level
-        cs[CS_O_LEVEL] += (clip(cp, applied) / 100.0 - cs[CS_O_LEVEL]) * pymin(
-            cp[C_PERIOD] / LEVEL_MEAN_S, 1.0)
+        cs[CS_O_LEVEL] = _mean(cs[CS_O_LEVEL], clip(cp, applied) / 100.0, cp, LEVEL_MEAN_S)
     drift_applied(cs[CS_DRIFT:CS_LAW], applied)
     if reason == REASON_AIR_CUT and math.isfinite(applied):   # the hold's (_fall)
         cs[CS_FALL_ENTRY] = clip(cp, applied)
@@ -1153,8 +1159,7 @@ def controller_feed(cp: np.ndarray, cs: np.ndarray, feed_mm_min: float) -> None:
     # the oscillation detector's, whatever the drift monitor takes (_left_cut)
     cs[CS_O_FEED] = feed_mm_min / cp[C_FEED_RATE] if cp[C_FEED_RATE] > 0.0 else math.nan
     if math.isfinite(cs[CS_O_FEED]):   # the hold's (_fall)
-        cs[CS_FALL_FEED] += (cs[CS_O_FEED] - cs[CS_FALL_FEED]) * pymin(
-            cp[C_PERIOD] / FALL_FEED_MEAN_S, 1.0)
+        cs[CS_FALL_FEED] = _mean(cs[CS_FALL_FEED], cs[CS_O_FEED], cp, FALL_FEED_MEAN_S)
 
 
 @entry('void(float64[::1], float64[::1], float64)')
