@@ -13,6 +13,7 @@ from turning_force.core.control import ControllerSettings, make_controller
 from turning_force.core.control.predictor import model_matrices
 from turning_force.core.experiment import load_experiment
 from turning_force.core.kernel.simulate import simulate
+from turning_force.core.pmc.settings import Reason
 
 PERIOD_S = 0.01
 SERVO_S, TAU_C_S = 0.17, 0.05
@@ -122,3 +123,68 @@ def test_on_park_fig8_it_holds_the_band_with_fewer_changes_than_the_sliding_mode
     assert mpc['steady_mean_abs_error_n'] < smc['steady_mean_abs_error_n']
     assert mpc['ripple_p2p_n'] < smc['ripple_p2p_n']
     assert mpc['override_changes_per_s'] <= smc['override_changes_per_s']
+
+
+
+def entered(tau_c_s: float, penalty: float, gap_s: float = 0.0) -> np.ndarray:
+    """The force through an entry into the cut and 3 s after: the gate's entry feed (30 %)
+    holds while the force rises behind the cut's own lag (the depth enters through it, as the
+    feed does: F' = (K d z_s^g - F) / tau_c, z_s the feed after 0.1 s of PMC dead time and the
+    0.17 s servo) until the force is at 95 % of what that feed gives (450 N: the reference needs
+    33 %); then the law, whose model is the plant's, regulates. With ``gap_s``, the tool is in
+    air for that long from 1.5 s (a groove: the force falls toward 0 behind the lag, the axis
+    still feeding as measured)."""
+    exponent, dead_time_s, entry = 0.7, 0.1, 30.0
+    settings = ControllerSettings(
+        controller='mpc', model_cutting_time_constant_s=tau_c_s, model_cutting_exponent=exponent,
+        model_dead_time_s=dead_time_s, quantiser='error_feedback', mpc_switch_penalty=penalty)
+    law = make_controller(settings)
+    gain = 450.0 / entry ** exponent
+    lag, servo = np.exp(-PERIOD_S / tau_c_s), np.exp(-PERIOD_S / SERVO_S)
+    feed, force, queue = entry, 0.0, [entry] * round(dead_time_s / PERIOD_S)
+    for _ in range(20):   # the approach in air
+        law.update(0.0, 0.0)
+        law.applied(entry, False, int(Reason.AIR_CUT))
+    entering, forces = True, np.empty(300)
+    for k in range(forces.size):
+        depth = 0.0 if 150 <= k < 150 + round(gap_s / PERIOD_S) else 1.0
+        before = force
+        force = lag * force + (1.0 - lag) * depth * gain * feed ** exponent
+        law.feed(feed / 100.0 * settings.programmed_feed_rate_mm_min)
+        request = law.update(force, (force - before) / PERIOD_S).override_pct
+        entering = entering and force < 0.95 * 450.0
+        applied = entry if entering else request
+        law.applied(applied, True, int(Reason.AIR_CUT if entering else Reason.NORMAL))
+        queue.append(applied)
+        feed = servo * feed + (1.0 - servo) * queue.pop(0)
+        forces[k] = force
+    return forces
+
+
+# At the entry feed's end the force is at 95 % of what the entry feed gives and still rising.
+# The law's model rests on the entry level (the PMC held it), so a gain learned as F / z^g from
+# the rising force came out low (its smoothing lags the rise too), the law asked for more than
+# the reference needs and overshot it by 7-24 N on these cases. With the model's lagged feed put
+# where the force's asymptote (F + tau_c dF/dt) says, the gain is the cut's and the law meets the
+# reference without overshoot beyond a pulse of the quantiser: 10 % for one period through the
+# 0.17 s servo moves the force by 15 N/% x 10 % x (1 - exp(-0.01 / 0.17)) = 8.6 N at most here,
+# and a few newtons through the lag.
+@pytest.mark.parametrize('tau_c_s', [0.1, 0.2])
+@pytest.mark.parametrize('penalty', [0.0, 0.5])
+def test_the_entry_feed_s_end_meets_the_reference_without_overshoot(tau_c_s, penalty):
+    forces = entered(tau_c_s, penalty)
+    assert forces.max() - 500.0 < 5.0
+    assert abs(forces[-100:].mean() - 500.0) < 1.0   # and regulates: the two-level test's band
+
+
+# A groove the gate does not see (0.15 s of air: the force falls to 184-236 N, over the gate's
+# exit threshold): the loop holds its level through it (update._fall) with the law at rest on
+# it, as at the entry feed, and the force's rise at the end of the hold is the cut's lag again.
+# Learned from it as F / z^g, the gain came out low and the law overshot the reference by 13-20
+# N after the groove; from the asymptote, by no more than the entry's bound above.
+@pytest.mark.parametrize('tau_c_s', [0.15, 0.2])
+def test_the_end_of_a_hold_through_a_groove_meets_the_reference_without_overshoot(tau_c_s):
+    forces = entered(tau_c_s, 0.0, gap_s=0.15)
+    assert forces[150:170].min() > 150.0   # never under exit_force_n: the gate saw nothing
+    assert forces[150:].max() - 500.0 < 5.0
+    assert abs(forces[-50:].mean() - 500.0) < 1.0

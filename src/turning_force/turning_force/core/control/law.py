@@ -150,7 +150,12 @@ CS_O_SPELL_S, CS_O_OPENED, CS_O_NET_LAST, CS_O_NET_BEFORE = 50, 51, 52, 53
 # feed).
 CS_FALL, CS_FALL_CAP, CS_FALL_BASE, CS_FALL_S, CS_FALL_CALM, CS_FALL_ENTRY, CS_FALL_FEED = \
     range(54, 61)
-CS_DRIFT = 61   # the drift monitor's state (.drift), drift.STATE values
+# 1 while the gate holds its entry feed with the tool in the cut, or the loop holds its level
+# through an exit the gate has not seen (.update._fall), as of the last level applied: the law
+# rests on that level while the force may still rise behind the cut's own lag, which a law with
+# a model of it follows (.laws.mpc).
+CS_ENTERING = 61
+CS_DRIFT = 62   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.

@@ -58,6 +58,7 @@ from turning_force.core.control.law import (
     CS_CARRY,
     CS_DRIFT,
     CS_ENGAGED,
+    CS_ENTERING,
     CS_FALL,
     CS_FALL_BASE,
     CS_FALL_CALM,
@@ -1094,6 +1095,10 @@ def controller_applied(cp: np.ndarray, cs: np.ndarray, applied: float, engaged: 
     drift_applied(cs[CS_DRIFT:CS_LAW], applied)
     if reason == REASON_AIR_CUT and math.isfinite(applied):   # the hold's (_fall)
         cs[CS_FALL_ENTRY] = clip(cp, applied)
+    # the force's rise that a law's model may follow (CS_ENTERING): at the gate's entry feed,
+    # and at the end of a hold through an exit the gate did not see (_fall: the law rests)
+    cs[CS_ENTERING] = 1.0 if engaged and (reason == REASON_AIR_CUT or cs[CS_FALL] != 0.0) \
+        else 0.0
     if reason != REASON_NORMAL and math.isfinite(applied):
         # the oscillation detector's sum of the levels over the swing: the level applied,
         # not the law's (a law held at the entry feed asks for 150 %)
