@@ -224,6 +224,13 @@ def feed_rate(cp: np.ndarray, override_pct: float) -> float:
     return override_pct / 100.0 * cp[C_FEED_RATE]
 
 
+@compiled
+def heading(cp: np.ndarray, force: float, rate: float) -> float:
+    """Where the force heads: ``F + tau_c dF/dt``, the asymptote of the first-order process
+    lag the laws assume (Park Eq. 1, ``C_TAU_C``), the force's rate being the estimate's."""
+    return force + cp[C_TAU_C] * rate
+
+
 @dataclass(frozen=True)
 class ControllerBase(Settings):
     """The force controller's settings every law shares (``force_controller`` parameters).

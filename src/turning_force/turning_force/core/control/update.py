@@ -53,7 +53,6 @@ from turning_force.core.control.law import (
     C_PERIOD,
     C_REF,
     C_RPM,
-    C_TAU_C,
     C_UNREACH,
     CS_CARRY,
     CS_DRIFT,
@@ -129,6 +128,7 @@ from turning_force.core.control.law import (
     clip,
     spindle_speed,
 )
+from turning_force.core.control.law import heading as force_heading
 
 __all__ = ['control_applied', 'control_feed', 'control_rezeroed', 'control_step', 'control_tool',
            'controller_applied', 'controller_feed',
@@ -947,7 +947,7 @@ def _fall(cp: np.ndarray, cs: np.ndarray, levels: np.ndarray, error: float, rate
     yet (FALL_RATE_PER_S's text): FALL_HELD, FALL_PENDING while the fall is not yet sure
     (the request is not to rise meanwhile), or FALL_NONE; never where not ``allowed``."""
     ref = cp[C_REF]
-    heading = error + ref + cp[C_TAU_C] * rate   # where the force goes (FALL_RATE_PER_S)
+    heading = force_heading(cp, error + ref, rate)   # where the force goes (FALL_RATE_PER_S)
     if cs[CS_ENGAGED] == 0.0:
         cs[CS_FALL], cs[CS_FALL_BASE], cs[CS_FALL_S] = 0.0, 0.0, 0.0
         return FALL_NONE

@@ -96,6 +96,7 @@ from turning_force.core.control.law import (
     OUT_S,
     ControllerBase,
     Law,
+    heading,
 )
 from turning_force.core.control.predictor import MODEL_SIZE, SCALES
 from turning_force.core.pmc.overrides import get_table
@@ -354,13 +355,13 @@ def _entering(cp: np.ndarray, cs: np.ndarray, force: float, rate: float) -> None
     asymptote from it was 40 % high on seed 15's #2 (678 N where 30 % gave about 475 N): the
     law cut the feed to 0-10 % at the hand-over, swung back to 150 %, was alarmed as a cycle,
     and met the next piece 298 N over the reference (12 N before)."""
-    tau_c = cp[C_TAU_C]
-    if cs[CS_ENTERING] == 0.0 or tau_c <= 0.0 or not force > cp[P_ENGAGED] * cp[C_REF]:
+    if cs[CS_ENTERING] == 0.0 or cp[C_TAU_C] <= 0.0 \
+            or not force > cp[P_ENGAGED] * cp[C_REF]:
         return
-    heading = force + tau_c * rate
-    if heading > force:
+    asymptote = heading(cp, force, rate)
+    if asymptote > force:
         nx = int(cp[P_NX])
-        share = pymax(force / heading, ENTRY_SHARE_MIN)
+        share = pymax(force / asymptote, ENTRY_SHARE_MIN)
         cs[S_X + nx - 1] = cs[CS_HELD] * share ** (1.0 / cp[P_EXPONENT])
 
 
