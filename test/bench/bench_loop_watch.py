@@ -13,7 +13,9 @@ windows left out) over the run from RECOVERY_S after its alarm: a reaction needs
 cycle's periods to bring the loop back (the oscillation itself, before the alarm, is in the
 whole run's figure beside it). A run the reaction leaves over the bound is shown with the
 window that holds its ripple (the 1 s before which depth change, or before the end): a depth
-step's transient under the reaction shows in the window before the next change::
+step's transient under the reaction shows in the window before the next change. A run whose
+feed the gate held on overload after the alarm (``overload_force_n``: the cut stopped, 0 N of
+ripple from then on) is not calmed, and says so::
 
     .venv/bin/python test/bench/bench_loop_watch.py --machines 60 --seed 15
 """
@@ -24,6 +26,8 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'core'))
 
 from test_loop_watch import first_alarm_s, oscillation_onset_s, ripple_after
@@ -31,6 +35,7 @@ from test_loop_watch import first_alarm_s, oscillation_onset_s, ripple_after
 from turning_force.commands.population import draw, job_experiment
 from turning_force.core.experiment import Experiment
 from turning_force.core.kernel.simulate import SimulationResult, simulate
+from turning_force.core.pmc.settings import Reason
 
 BAND_STEADY_N, BAND_RIPPLE_N = 5.0, 25.0
 RECOVERY_S = 3.0
@@ -52,6 +57,16 @@ def worst_window_s(result: SimulationResult, job: Experiment, from_s: float) -> 
     return float(t[-1])
 
 
+def held_after(result: SimulationResult, alarm_s: float | None) -> bool:
+    """Whether the gate held the feed on overload (``overload_force_n``) after the alarm: the
+    cut stopped, whatever its ripple says (0 N without a cut)."""
+    if alarm_s is None:
+        return False
+    trace = result.trace
+    after = trace['t_s'] >= alarm_s
+    return bool(np.any(trace['override_reason'][after] == int(Reason.OVERLOAD_HOLD)))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--machines', type=int, default=60)
@@ -71,6 +86,7 @@ def main() -> None:
                         and metrics['ripple_p2p_n'] <= BAND_RIPPLE_N),
             'ripple_n': metrics['ripple_p2p_n'], 'reacted_ripple_n': reacted['ripple_p2p_n'],
             'recovered_ripple_n': ripple_after(reacting, job, (alarm_s or 0.0) + RECOVERY_S),
+            'held': held_after(reacting, alarm_s),
             'worst_s': worst_window_s(reacting, job, (alarm_s or 0.0) + RECOVERY_S),
             'steady_n': metrics['steady_mean_abs_error_n'],
             'reacted_steady_n': reacted['steady_mean_abs_error_n']})
@@ -79,7 +95,8 @@ def main() -> None:
               if r['alarm_s'] is not None and r['alarm_s'] <= r['onset_s'] + 2.0]
     in_band = [r for r in rows if r['in_band']]
     false = [r for r in rows if r['onset_s'] is None and r['alarm_s'] is not None]
-    calmed = [r for r in oscillating if r['recovered_ripple_n'] < BAND_RIPPLE_N]
+    calmed = [r for r in oscillating
+              if r['recovered_ripple_n'] < BAND_RIPPLE_N and not r['held']]
     print(f'{args.machines} machines (seed {args.seed}), uncommissioned defaults, '
           'error-feedback quantiser')
     print(f"  oscillating (true force, the issue's criterion)  {len(oscillating):4d}")
@@ -89,6 +106,8 @@ def main() -> None:
           f'{sum(r["alarm_s"] is not None for r in in_band):4d}')
     print(f'  alarmed, not oscillating                           {len(false):4d}')
     print(f'  under {BAND_RIPPLE_N:g} N ripple after the reaction            {len(calmed):4d}')
+    print(f'  held on overload after the alarm (not calmed)      '
+          f'{sum(r["held"] for r in oscillating):4d}')
     for title, group in (('missed or late', [r for r in oscillating if r not in caught]),
                          ('alarmed, not oscillating', false),
                          ('reaction left it over the ripple bound',
@@ -96,7 +115,8 @@ def main() -> None:
         print(f'{title}:')
         for r in group:
             alarm = 'none' if r['alarm_s'] is None else f'{r["alarm_s"]:.2f}'
-            print(f'  {r["machine"]}: onset {r["onset_s"]}, alarm {alarm}, ripple '
+            held = ', held on overload' if r['held'] else ''
+            print(f'  {r["machine"]}{held}: onset {r["onset_s"]}, alarm {alarm}, ripple '
                   f'{r["ripple_n"]:.0f} -> {r["reacted_ripple_n"]:.0f} N (from '
                   f'{RECOVERY_S:g} s after the alarm: {r["recovered_ripple_n"]:.0f} N, '
                   f'the 1 s before {r["worst_s"]:.1f} s), steady '

@@ -27,16 +27,27 @@ SHORT = ['force_controller.staircase_step_s=0.5', 'experiment.duration_s=10.5',
 TRUE_SLOPE = 0.00629
 
 
-@pytest.fixture(scope='module')
-def commissioning(tmp_path_factory):
-    """Kim's FANUC (80 ms PMC dead time) with a dynamometer, and an estimator whose current
-    map reads 10 % high."""
+def commissioning_session(tmp_path_factory, *sets: str) -> Path:
+    """Kim's FANUC (80 ms PMC dead time) with a dynamometer, commissioned in a short session
+    (``sets`` on top): the session's directory."""
     experiment = load_experiment(EXPERIMENTS / 'commissioning.yaml').with_sets([
-        *SHORT, 'lathe_sim.pmc_dead_time_s=0.08', 'lathe_sim.dynamometer=true',
-        f'force_estimator.current_per_force_a_n={TRUE_SLOPE / 1.1}'])
+        *SHORT, 'lathe_sim.pmc_dead_time_s=0.08', 'lathe_sim.dynamometer=true', *sets])
     bag = tmp_path_factory.mktemp('commissioning') / 'session'
     run_lockstep(experiment, bag)
     return bag
+
+
+@pytest.fixture(scope='module')
+def commissioning(tmp_path_factory):
+    """Kim's FANUC with an estimator whose current map reads 10 % high."""
+    return commissioning_session(tmp_path_factory,
+                                 f'force_estimator.current_per_force_a_n={TRUE_SLOPE / 1.1}')
+
+
+@pytest.fixture(scope='module')
+def calibrated(tmp_path_factory):
+    """Kim's FANUC with the estimator's current map right."""
+    return commissioning_session(tmp_path_factory)
 
 
 def cli_json(capfd, argv):
@@ -268,9 +279,14 @@ def test_identify_a_production_session_keeps_the_prior_for_friction(capfd, tmp_p
     assert 'kept from --prior' in capfd.readouterr().out
 
 
-def test_identify_writes_one_tools_section_keeping_the_others(commissioning, capfd, tmp_path):
+def test_identify_writes_one_tools_section_keeping_the_others(calibrated, capfd, tmp_path):
     # identify --tool 2: the commissioning cut's results become tool 2's controller section of
     # a tools file; tool 1 and tool 2's bridge limits stay; the file then runs the program.
+    # On a calibrated estimator: with the current map 10 % high (the other tests' session) the
+    # verification's laws all regulate the true force 27 N under tool 2's 300 N, no plant in
+    # band, and which of them ranks first is a matter of 1 N (the uncommissioned defaults,
+    # whose oscillation reaction runs on the measured feed, now do), so that no section is
+    # written; here the predictive law holds 14 of 17 plants and is written.
     import yaml
 
     from turning_force.core.errors import ConfigError
@@ -281,7 +297,7 @@ def test_identify_writes_one_tools_section_keeping_the_others(commissioning, cap
     tools = tmp_path / 'tools.yaml'
     tools.write_text((root / 'config' / 'tools' / 'two_tools.yaml').read_text())
     before = load_tools_file(tools)
-    result = cli_json(capfd, ['identify', str(commissioning), '--out', str(tools), '--json',
+    result = cli_json(capfd, ['identify', str(calibrated), '--out', str(tools), '--json',
                               '--depths-mm', '1:3', '--tool', '2', '--plants', '4'])
     after = load_tools_file(tools)
     # Tool 2's limits are kept but its entry feed: verified on its own 300 N reference, its
@@ -308,7 +324,7 @@ def test_identify_writes_one_tools_section_keeping_the_others(commissioning, cap
                                           "law is the machine's"):
         parse_experiment(program.replace(f'controller: {law}', f'controller: {other}'), 'x')
     # Without --out there is no tools file to write: one line, exit 2.
-    assert main(['identify', str(commissioning), '--depths-mm', '1:3', '--tool', '2',
+    assert main(['identify', str(calibrated), '--depths-mm', '1:3', '--tool', '2',
                  '--plants', '4']) == 2
     assert '--out TOOLS_FILE is needed' in capfd.readouterr().err
 

@@ -42,6 +42,7 @@ from turning_force.core.control.law import (
     CS_HELD,
     CS_LAW,
     CS_O_ALARMS,
+    CS_O_FEED,
     CS_RESETS,
     OSCILLATION_REACTIONS,
     OUT_DRIFT,
@@ -109,6 +110,7 @@ class Controller:
         # Room for the largest state any tool's section needs (its dead time's queue).
         self._state = np.zeros(CS_LAW + max(size, tool_size))
         self._state[CS_DRIFT + drift.DS_APPLIED] = math.nan   # no override applied told yet
+        self._state[CS_O_FEED] = math.nan   # no axis feed measured yet
         self._state[CS_HELD] = min(max(settings.initial_override_pct, self.min_pct),
                                    self.max_pct)
         update.controller_start(self._params, self._state)

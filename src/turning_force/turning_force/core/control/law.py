@@ -155,7 +155,13 @@ CS_FALL, CS_FALL_CAP, CS_FALL_BASE, CS_FALL_S, CS_FALL_CALM, CS_FALL_ENTRY, CS_F
 # rests on that level while the force may still rise behind the cut's own lag, which a law with
 # a model of it follows (.laws.mpc).
 CS_ENTERING = 61
-CS_DRIFT = 62   # the drift monitor's state (.drift), drift.STATE values
+# The detune reaction's law on the axis feed the DAQ measured (.update._by_feed): the log of
+# that feed's share of the 100 % feed, lagged as the force lags the feed
+# (.update.REACTION_LAG_S), 1 while the law runs on it (0: the PI law on the level sent, where
+# no feed is measured or it was lost), the cut's own log force share it reads (NaN: none
+# yet), and that reading's lag [s] (0: none; set where the law cycled: .update.FEED_CYCLE_RATIO).
+CS_O_MODEL_FEED, CS_O_BY_FEED, CS_O_CUT, CS_O_CUT_S = 62, 63, 64, 65
+CS_DRIFT = 66   # the drift monitor's state (.drift), drift.STATE values
 CS_LAW = CS_DRIFT + drift.STATE
 # One period's output: request, error, sliding variable, reachable, oscillation alarm, the
 # drift alarm (what drifted: drift.CAUSES' index, 0 none) and the drift's size.
@@ -309,6 +315,9 @@ class ControllerBase(Settings):
         '-', low=2, high=100, dynamic=True)
     oscillation_reaction: str = setting(
         'detune', 'What the oscillation alarm does until the run ends or the tool changes: '
+        "where the DAQ measures the axis feed, the level from the cut's own force per feed "
+        '(the force against the measured feed through 0.8 of model_cutting_exponent: a depth '
+        "step answered at once, the servo's ring left alone), otherwise "
         "a slow PI law on the log of the feed whose crossover is a fifth of the oscillation's "
         'frequency, raised up to 1/3.5 of it where the force comes back slowly after a depth '
         'step, and a depth step down answered at once through the feed exponent '
