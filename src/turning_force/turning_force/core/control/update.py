@@ -507,17 +507,20 @@ RISE_KEEP, RISE_HALVES = 0.3, 0.5
 # feed is measured (NaN), or once it is lost, the PI law below takes over from the level held.
 # With FEED_CYCLE_RATIO below, seeds 3-202: 653 of the 657 calmed (640 by the PI law); on
 # seeds not used to choose it, 11-59: 655 of 659 (638), 71-127: 668 of 674 (648); no run
-# alarmed in band, and the alarms as before (the reaction starts after them). Of the 18
-# left, 5 are never alarmed (a depth step's settling meets the issue's criterion), 8 are
-# long jobs on the slowest loops (dead time 102-144 ms: 25-54 N, a x3 step's tail), and seed
-# 21's #45 (below) cycled under the law until its next depth step, a x3.5 one, took the force
-# over overload_force_n and the gate held the feed (calmed by the PI law).
+# alarmed in band, and the alarms as before (the reaction starts after them). Of the 14
+# left, 5 are never alarmed (a depth step's settling meets the issue's criterion), 7 are
+# long jobs on the slowest loops (dead time 102-144 ms: 25-54 N in the second before the
+# next step, 2-3 s after a x3 step; on a servo damped at 0.4 the level holds from the step on
+# and what is left is the servo's own ring after the move, 80 -> 20 %: seed 33's #56), one an
+# interrupted cut after a servo drift (seed 59's #2, 49 N), and seed 21's #45 (below) cycled
+# under the law until its next depth step, a x3.5 one, took the force over
+# overload_force_n and the gate held the feed (calmed by the PI law).
 REACTION_EXPONENT_SHARE, REACTION_LAG_S, REACTION_FEED_FLOOR = 0.8, 0.1, 0.02
 # The law on the feed can cycle on its own: where the cut is much faster than REACTION_LAG_S
 # and the servo lightly damped, the force's answer to the feed's ring runs ahead of the
 # model's and the level answers it as a proportional law would, through the servo's
 # resonance (seed 21's #45: tau_c 0.027 s, a servo of 18.5 rad/s damped at 0.33: a 0.3 s
-# cycle of 50-150 %). Where the detector counts a cycle under it (:func:`_recycle`) no faster
+# cycle of 50-150 %). Where the detector counts a cycle under it (:func:`_recycle`) no slower
 # than FEED_CYCLE_RATIO times the alarmed half-period, the law reads the cut through a lag of
 # the cycle's half-period (doubled at each cycle after), which takes the loop's gain at the
 # cycle down. Slower ones are a long job's depth steps settling, no cycle of the law's: on
@@ -984,8 +987,9 @@ def _by_feed(cp: np.ndarray, cs: np.ndarray, share: float) -> float:
 
 @compiled
 def _react(cp: np.ndarray, cs: np.ndarray, error: float, rate: float) -> float:
-    """The reaction's request while the alarm holds: the detune reaction's PI law on the log of
-    the relative feed (DETUNE_RATIO, DETUNE_P), kept inside the table, or the held level. After
+    """The reaction's request while the alarm holds: the detune reaction's level from the
+    measured feed (:func:`_by_feed`) or, where none is measured, its PI law on the log of
+    the relative feed (DETUNE_RATIO, DETUNE_P), kept inside the table; or the held level. After
     the gate has set the feed, the law waits on the gate's level until the force has settled
     there, and starts from the level that force implies."""
     if int(cp[C_OSC_REACTION]) == DETUNE:
