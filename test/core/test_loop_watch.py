@@ -1005,9 +1005,11 @@ def test_the_reaction_on_the_feed_contracts_an_exponent_error(g):
     # step: the first move is 3^(-1/g_m), short of it where the cut's exponent is lighter than
     # the model's, beyond it where heavier, and the rest comes as the feed arrives, from that
     # side (the level's log is the cut's term plus (1 - g / g_m) times the lagged log feed,
-    # which falls monotonically here). Within 0.5 %: the error feedback sends the level as the
+    # which falls monotonically here). Within 1 %: the error feedback sends the level as the
     # table's neighbours in turn (10 and 20 % at the end, 0.4 % of the feed's log left over
-    # through this servo), and the feed wiggles with them.
+    # through this servo), and the feed wiggles with them; and a rise of the level comes
+    # through its lag (FEED_RISE_HALVES), so the feed runs a little short of it, which the
+    # model reads as the cut's (0.75 % over, once, where the cut is heavier).
     g_m = REACTION_EXPONENT_SHARE * ControllerSettings().model_cutting_exponent
     cut, before, force = cut_after_alarm(True, g, 10.0, 1.0)
     final = before * 3.0 ** (-1.0 / g)
@@ -1015,9 +1017,9 @@ def test_the_reaction_on_the_feed_contracts_an_exponent_error(g):
     assert cut.levels[-1] == pytest.approx(final, rel=0.01)
     assert force == pytest.approx(500.0, rel=0.01)
     if g < g_m:
-        assert min(cut.levels) >= final * 0.995 and cut.levels[0] > final * 1.1
+        assert min(cut.levels) >= final * 0.99 and cut.levels[0] > final * 1.1
     else:
-        assert max(cut.levels) <= final * 1.005 and cut.levels[0] < final * 0.9
+        assert max(cut.levels) <= final * 1.01 and cut.levels[0] < final * 0.9
 
 
 def test_the_reaction_leaves_the_feed_for_its_pi_law_once_the_feed_is_lost():

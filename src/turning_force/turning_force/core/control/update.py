@@ -532,6 +532,18 @@ REACTION_EXPONENT_SHARE, REACTION_LAG_S, REACTION_FEED_FLOOR = 0.8, 0.1, 0.02
 # under the PI law, 7 N with the lag; 21's #45 at 71 N, where the lag came too late). A lag
 # of a third of the alarmed half-period from the alarm on, before any cycle: 641.
 FEED_CYCLE_RATIO = 2.0
+# The law on the feed lowers the level at once and raises it through a lag of
+# FEED_RISE_HALVES of the alarmed half-period. A rise answers a force under the reference (an
+# entry after the gate's entry feed, a depth step down), where a feed that comes a little late
+# costs no tool; taken at once, the jump into a lightly damped servo overshot: on
+# bench_entries seed 42 the uncommissioned defaults (alarmed, their reaction running) entered
+# at 81, 26, 142, 73, 28, 269 and 140 N over the reference on #2, #4, #8, #16, #19, #32 and
+# #36 (65, 15, 118, 49, 15, 224 and 134 N under the PI law), 66, 17, 119, 56, 18, 224 and 113 N
+# with the lag. On bench_loop_watch it calmed 652, 655 and 668 on seeds 3-202, 11-59 and
+# 71-127 (653, 655 and 668 without; half a half-period, 650 on 3-202: a x0.4 step's recovery
+# slower), and seed 21's #45 was no longer held on overload (its level rose slower into the
+# x3.5 step).
+FEED_RISE_HALVES = 0.25
 # Where the law adopts the model of a lag drift the monitor named (drift_adopt_model), the loop
 # answers the switch as it would a kick: the old model's ring dies away over about the
 # monitor's window (drift_memory_s), which is how long the drift took to be named. Its swings
@@ -973,7 +985,8 @@ def _by_feed(cp: np.ndarray, cs: np.ndarray, share: float) -> float:
     ln(F / F_ref): the cut's own ln(K d / F_ref), the share less g times the model's lagged
     log feed (itself lagged where the law cycled: FEED_CYCLE_RATIO), and the level that brings
     the force to the reference, exp(-that / g), g at REACTION_EXPONENT_SHARE of the exponent
-    the laws assume. Out of the cut the gate sets the feed and the level held stands."""
+    the laws assume; a rise through FEED_RISE_HALVES of the alarmed half-period. Out of the
+    cut the gate sets the feed and the level held stands."""
     if cs[CS_ENGAGED] != 0.0:
         g = REACTION_EXPONENT_SHARE * cp[C_EXPONENT]
         cut = share - g * cs[CS_O_MODEL_FEED]
@@ -981,7 +994,11 @@ def _by_feed(cp: np.ndarray, cs: np.ndarray, share: float) -> float:
             cs[CS_O_CUT] = cut
         else:
             cs[CS_O_CUT] += (cut - cs[CS_O_CUT]) * (1.0 - math.exp(-cp[C_PERIOD] / cs[CS_O_CUT_S]))
-        cs[CS_O_HOLD] = clip(cp, 100.0 * math.exp(-cs[CS_O_CUT] / g))
+        level, held = clip(cp, 100.0 * math.exp(-cs[CS_O_CUT] / g)), pymax(cs[CS_O_HOLD], 1.0)
+        if level > held:   # a rise through FEED_RISE_HALVES of the alarmed half-period
+            level = held * (level / held) ** (
+                1.0 - math.exp(-cp[C_PERIOD] / (FEED_RISE_HALVES * cs[CS_O_HALF])))
+        cs[CS_O_HOLD] = clip(cp, level)
     return cs[CS_O_HOLD]
 
 
