@@ -505,16 +505,15 @@ RISE_KEEP, RISE_HALVES = 0.3, 0.5
 # the loops cycled (none of 13 calmed that the observer alone mostly did). The measured feed
 # is floored at REACTION_FEED_FLOOR of the 100 % feed (a stopped axis has no log). Where no
 # feed is measured (NaN), or once it is lost, the PI law below takes over from the level held.
-# With FEED_CYCLE_RATIO below, seeds 3-202: 653 of the 657 calmed (640 by the PI law); on
-# seeds not used to choose it, 11-59: 655 of 659 (638), 71-127: 668 of 674 (648); no run
-# alarmed in band, and the alarms as before (the reaction starts after them). Of the 14
-# left, 5 are never alarmed (a depth step's settling meets the issue's criterion), 7 are
-# long jobs on the slowest loops (dead time 102-144 ms: 25-54 N in the second before the
-# next step, 2-3 s after a x3 step; on a servo damped at 0.4 the level holds from the step on
-# and what is left is the servo's own ring after the move, 80 -> 20 %: seed 33's #56), one an
-# interrupted cut after a servo drift (seed 59's #2, 49 N), and seed 21's #45 (below) cycled
-# under the law until its next depth step, a x3.5 one, took the force over
-# overload_force_n and the gate held the feed (calmed by the PI law).
+# With FEED_CYCLE_RATIO and FEED_RISE_HALVES below, seeds 3-202: 652 of the 657 calmed (640
+# by the PI law); on seeds not used to choose them, 11-59: 655 of 659 (638), 71-127: 668 of
+# 674 (648); no run alarmed in band, none held on overload after its alarm, and the alarms as
+# before (the reaction starts after them). Of the 15 left, 5 are never alarmed (a depth
+# step's settling meets the issue's criterion), 9 are long jobs on the slowest loops (dead
+# time 102-144 ms: 25-59 N in the second before the next step, 2-3 s after a x3 step; on a
+# servo damped at 0.4 the level holds from the step on and what is left is the servo's own
+# ring after the move, 80 -> 20 %: seed 33's #56), and one an interrupted cut after a servo
+# drift (seed 59's #2, 31 N).
 REACTION_EXPONENT_SHARE, REACTION_LAG_S, REACTION_FEED_FLOOR = 0.8, 0.1, 0.02
 # The law on the feed can cycle on its own: where the cut is much faster than REACTION_LAG_S
 # and the servo lightly damped, the force's answer to the feed's ring runs ahead of the
