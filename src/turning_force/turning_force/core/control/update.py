@@ -855,12 +855,11 @@ def _recycle(cp: np.ndarray, cs: np.ndarray) -> None:
     twice the last where it had one."""
     if int(cp[C_OSC_REACTION]) != DETUNE:
         return
+    half = cs[CS_O_HALVES] / cs[CS_O_COUNT]
     if cs[CS_O_BY_FEED] != 0.0:
-        half = cs[CS_O_HALVES] / cs[CS_O_COUNT]
         if half <= FEED_CYCLE_RATIO * cs[CS_O_HALF]:
             cs[CS_O_CUT_S] = pymax(2.0 * cs[CS_O_CUT_S], half)
         return
-    half = cs[CS_O_HALVES] / cs[CS_O_COUNT]
     cs[CS_O_CROSSOVER] *= 0.5
     if half > REACTION_HALF_RATIO * cs[CS_O_HALF]:
         cs[CS_O_CROSSOVER] = pymin(cs[CS_O_CROSSOVER], math.pi / (RECYCLE_RATIO * half))
